@@ -1,0 +1,281 @@
+"""The interface shared by every SLAM filter of :mod:`seif_gym.slam`.
+
+:class:`SlamFilter` owns what all filters have in common: option checking,
+input validation (done in full *before* any state changes, so a bad call
+leaves the filter exactly as it was), and the bookkeeping between external
+landmark ids and their order in the state vector. Subclasses implement the
+estimation itself in ``_predict`` and ``_update``.
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from typing import Any, ClassVar
+
+import numpy as np
+from numpy.typing import NDArray
+
+from seif_gym.slam._validation import (
+    as_covariance,
+    as_finite_array,
+    as_finite_vector,
+    as_id_array,
+    as_positive_scalar,
+)
+from seif_gym.slam.models import MotionModel, RangeBearingSensor, wrap_angle
+
+__all__ = ["SlamFilter", "UnknownLandmarkError", "DEFAULT_INITIAL_POSE_COV"]
+
+FloatArray = NDArray[np.float64]
+
+#: Initial pose covariance when none is given: the map frame is anchored at the
+#: initial pose, so it is known almost exactly (a tiny variance keeps the
+#: information matrix finite).
+DEFAULT_INITIAL_POSE_COV: FloatArray = np.diag([1e-6, 1e-6, 1e-6])
+
+
+class UnknownLandmarkError(KeyError, ValueError):
+    """Raised when a landmark id is not in the filter's map."""
+
+    def __str__(self) -> str:  # KeyError quotes its message; show it plainly
+        return str(self.args[0]) if self.args else ""
+
+
+class SlamFilter(ABC):
+    """Base class of the SLAM filters (``EKF``, ``EIF``, ``SEIF``, ...).
+
+    Parameters
+    ----------
+    motion : MotionModel
+        Provides ``linearize(pose, control, dt) -> (delta, G, R)`` and
+        ``validate_control``; :class:`~seif_gym.slam.models.VelocityMotionModel`
+        or the Victoria Park car model.
+    sensor : RangeBearingSensor
+        Provides ``noise_covariance`` (2, 2) and the range-bearing model.
+    initial_pose : array_like, shape (3,)
+        ``(x, y, theta)`` of the robot at time 0.
+    initial_pose_cov : array_like, shape (3, 3), optional
+        Its covariance; defaults to :data:`DEFAULT_INITIAL_POSE_COV`.
+    **options
+        Filter-specific options, listed in the subclass's ``OPTIONS``.
+        An unknown option raises ``TypeError``.
+    """
+
+    #: Option names and defaults of the subclass.
+    OPTIONS: ClassVar[dict[str, Any]] = {}
+
+    def __init__(
+        self,
+        motion: MotionModel,
+        sensor: RangeBearingSensor,
+        initial_pose,
+        initial_pose_cov=None,
+        **options: Any,
+    ) -> None:
+        if not callable(getattr(motion, "linearize", None)) or not callable(getattr(motion, "validate_control", None)):
+            raise TypeError(
+                f"motion must provide linearize(pose, control, dt) and validate_control(control), "
+                f"got {type(motion).__name__}"
+            )
+        noise = getattr(sensor, "noise_covariance", None)
+        if noise is None or np.shape(noise) != (2, 2):
+            raise TypeError(f"sensor must be a range-bearing sensor with a (2, 2) noise_covariance, got {type(sensor).__name__}")
+        unknown = sorted(set(options) - set(self.OPTIONS))
+        if unknown:
+            valid = ", ".join(self.OPTIONS) or "none"
+            raise TypeError(f"{type(self).__name__} got unknown option(s) {', '.join(map(repr, unknown))}; valid options: {valid}")
+        pose = as_finite_vector(initial_pose, "initial_pose", 3).copy()
+        pose[2] = wrap_angle(float(pose[2]))
+        cov = DEFAULT_INITIAL_POSE_COV if initial_pose_cov is None else as_covariance(initial_pose_cov, "initial_pose_cov", 3)
+        self.motion = motion
+        self.sensor = sensor
+        self._measurement_cov: FloatArray = np.array(noise, dtype=np.float64)
+        self._measurement_info: FloatArray = np.linalg.inv(self._measurement_cov)
+        self._id_to_index: dict[int, int] = {}
+        self._ids: NDArray[np.int64] = np.empty(16, dtype=np.int64)
+        self.options: dict[str, Any] = {**self.OPTIONS, **options}
+        self._check_options(self.options)
+        self._initialize(pose, np.array(cov, dtype=np.float64))
+
+    # -- hooks for subclasses ------------------------------------------------
+    def _check_options(self, options: dict[str, Any]) -> None:
+        """Validate ``options`` (raise ``TypeError``/``ValueError``)."""
+
+    @abstractmethod
+    def _initialize(self, pose: FloatArray, pose_cov: FloatArray) -> None:
+        """Set up the state for a robot at ``pose`` with covariance ``pose_cov``."""
+
+    @abstractmethod
+    def _predict(self, control: FloatArray, dt: float) -> None:
+        """Motion update with validated inputs."""
+
+    @abstractmethod
+    def _update(self, ranges: FloatArray, bearings: FloatArray, indices: NDArray[np.int64], is_new: NDArray[np.bool_]) -> None:
+        """Measurement update with validated inputs.
+
+        ``indices`` are state orders of the observed landmarks; the ones with
+        ``is_new`` were appended to the id table just before the call and must
+        be added to the state (initialised from their measurement).
+        """
+
+    # -- public interface ----------------------------------------------------
+    def predict(self, control, dt: float) -> None:
+        """Motion update with ``control = (v, omega)`` applied for ``dt`` seconds."""
+        control = self.motion.validate_control(control)
+        dt = as_positive_scalar(dt, "dt")
+        self._predict(control, dt)
+
+    def update(self, ranges, bearings, ids) -> None:
+        """Measurement update with known correspondences.
+
+        Parameters
+        ----------
+        ranges, bearings : array_like, shape (m,)
+            Measured ranges (positive) and bearings (radians, robot frame).
+        ids : array_like of int, shape (m,)
+            External landmark ids, distinct. An id not yet in the map adds a
+            landmark, initialised from its measurement.
+        """
+        ranges, bearings, ids = self.validate_measurements(ranges, bearings, ids)
+        if len(ids) == 0:
+            self._update(ranges, bearings, np.empty(0, np.int64), np.empty(0, bool))
+            return
+        indices = np.empty(len(ids), dtype=np.int64)
+        is_new = np.zeros(len(ids), dtype=bool)
+        n = len(self._id_to_index)
+        for k, landmark_id in enumerate(ids.tolist()):
+            index = self._id_to_index.get(landmark_id)
+            if index is None:
+                is_new[k] = True
+                index = n
+                n += 1
+            indices[k] = index
+        new_ids = ids[is_new]
+        if len(new_ids):
+            self._append_ids(new_ids)
+        try:
+            self._update(ranges, bearings, indices, is_new)
+        except BaseException:
+            self._remove_last_ids(len(new_ids))
+            raise
+
+    @staticmethod
+    def validate_measurements(ranges, bearings, ids) -> tuple[FloatArray, FloatArray, NDArray[np.int64]]:
+        """Check a measurement set; returns float64 ranges, bearings and int64 ids."""
+        ranges = as_finite_array(ranges, "ranges", (None,))
+        bearings = as_finite_array(bearings, "bearings", (None,))
+        if bearings.shape != ranges.shape:
+            raise ValueError(f"bearings must have the same length as ranges ({len(ranges)}), got {len(bearings)}")
+        ids = as_id_array(ids, "ids", len(ranges))
+        if np.any(ranges <= 0.0):
+            raise ValueError(f"ranges must be positive, got {ranges[ranges <= 0.0]}")
+        if len(np.unique(ids)) != len(ids):
+            raise ValueError("ids must be distinct within one update")
+        return ranges, bearings, ids
+
+    # -- id bookkeeping ------------------------------------------------------
+    def _append_ids(self, new_ids: NDArray[np.int64]) -> None:
+        n = len(self._id_to_index)
+        if n + len(new_ids) > len(self._ids):
+            grown = np.empty(max(2 * len(self._ids), n + len(new_ids)), dtype=np.int64)
+            grown[:n] = self._ids[:n]
+            self._ids = grown
+        self._ids[n : n + len(new_ids)] = new_ids
+        for offset, landmark_id in enumerate(new_ids.tolist()):
+            self._id_to_index[landmark_id] = n + offset
+
+    def _remove_last_ids(self, count: int) -> None:
+        n = len(self._id_to_index)
+        for landmark_id in self._ids[n - count : n].tolist():
+            del self._id_to_index[landmark_id]
+
+    def landmark_index(self, landmark_id) -> int:
+        """Order of landmark ``landmark_id`` in the state (0 for the first landmark)."""
+        if isinstance(landmark_id, bool) or not isinstance(landmark_id, (int, np.integer)):
+            raise TypeError(f"landmark_id must be an integer, got {type(landmark_id).__name__}")
+        index = self._id_to_index.get(int(landmark_id))
+        if index is None:
+            raise UnknownLandmarkError(f"landmark_id {landmark_id} is not in the map")
+        return index
+
+    # -- read-only belief ----------------------------------------------------
+    @property
+    def num_landmarks(self) -> int:
+        """Number of landmarks in the map."""
+        return len(self._id_to_index)
+
+    @property
+    def landmark_ids(self) -> NDArray[np.int64]:
+        """External ids of the mapped landmarks, in state order, shape (n,)."""
+        ids = self._ids[: self.num_landmarks].copy()
+        ids.setflags(write=False)
+        return ids
+
+    @property
+    def state_dim(self) -> int:
+        """Length of the state vector ``3 + 2 n``."""
+        return 3 + 2 * self.num_landmarks
+
+    @property
+    def mean(self) -> FloatArray:
+        """Full state mean ``(x, y, theta, m1x, m1y, ...)``, shape (3 + 2n,)."""
+        mean = self._mean_vector().copy()
+        mean.setflags(write=False)
+        return mean
+
+    @property
+    def pose(self) -> FloatArray:
+        """Estimated robot pose ``(x, y, theta)``, shape (3,)."""
+        return self.mean[:3]
+
+    @property
+    def landmarks(self) -> FloatArray:
+        """Estimated landmark positions in the order of :attr:`landmark_ids`, shape (n, 2)."""
+        return self.mean[3:].reshape(-1, 2)
+
+    @property
+    def pose_covariance(self) -> FloatArray:
+        """Marginal covariance of the pose, shape (3, 3)."""
+        cov = self._marginal_covariance(np.arange(3))
+        cov.setflags(write=False)
+        return cov
+
+    def landmark_covariance(self, landmark_id) -> FloatArray:
+        """Marginal covariance of landmark ``landmark_id``, shape (2, 2)."""
+        index = self.landmark_index(landmark_id)
+        cov = self._marginal_covariance(np.array([3 + 2 * index, 4 + 2 * index]))
+        cov.setflags(write=False)
+        return cov
+
+    def covariance(self) -> FloatArray:
+        """The full dense covariance (3 + 2n, 3 + 2n).
+
+        For tests and evaluation only: it costs O(n^3) for the information
+        filters and is never used in a filter step.
+        """
+        return self._full_covariance()
+
+    @property
+    def memory_bytes(self) -> int:
+        """Bytes held by the filter's state arrays (capacity included)."""
+        return self._state_nbytes() + self._ids.nbytes
+
+    @abstractmethod
+    def _mean_vector(self) -> FloatArray:
+        ...
+
+    @abstractmethod
+    def _marginal_covariance(self, state_indices: NDArray[np.int64]) -> FloatArray:
+        ...
+
+    @abstractmethod
+    def _full_covariance(self) -> FloatArray:
+        ...
+
+    @abstractmethod
+    def _state_nbytes(self) -> int:
+        ...
+
+    def __repr__(self) -> str:
+        options = ", ".join(f"{k}={v!r}" for k, v in self.options.items())
+        return f"{type(self).__name__}(landmarks={self.num_landmarks}{', ' if options else ''}{options})"

@@ -1,0 +1,344 @@
+"""Motion and sensor models (Thrun, Burgard & Fox, *Probabilistic Robotics*).
+
+Every filter of :mod:`seif_gym.slam` takes a *motion model* and a *sensor*.
+A motion model is any object with the methods of :class:`MotionModel`; the
+filters only call :meth:`MotionModel.linearize`, which returns the pose
+increment, its Jacobian and the state-space noise in one call (one call keeps
+the per-step Python overhead small). The simulator calls ``sample``.
+
+Equations are those of ``SEIF.md`` ("Velocity motion model",
+"Range-bearing sensor").
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Protocol, runtime_checkable
+
+import numpy as np
+from numpy.typing import NDArray
+
+from seif_gym.slam._validation import (
+    as_finite_array,
+    as_finite_vector,
+    as_positive_scalar,
+)
+
+__all__ = [
+    "wrap_angle",
+    "MotionModel",
+    "VelocityMotionModel",
+    "RangeBearingSensor",
+]
+
+FloatArray = NDArray[np.float64]
+
+
+def wrap_angle(angle):
+    """Wrap angles to ``[-pi, pi)``; a float gives a float, anything else an array."""
+    if isinstance(angle, float):
+        return (angle + math.pi) % (2.0 * math.pi) - math.pi
+    return (np.asarray(angle, dtype=np.float64) + np.pi) % (2.0 * np.pi) - np.pi
+
+
+@runtime_checkable
+class MotionModel(Protocol):
+    """What a filter needs from a motion model.
+
+    ``linearize(pose, control, dt)`` returns ``(delta, G, R)``: the pose
+    increment ``delta`` (3,) so that the predicted pose is ``pose + delta``
+    (angle wrapped afterwards), the Jacobian ``G = d g / d pose`` (3, 3) and the
+    state-space motion noise ``R`` (3, 3), symmetric positive definite.
+    """
+
+    def linearize(self, pose: FloatArray, control: FloatArray, dt: float) -> tuple[FloatArray, FloatArray, FloatArray]:
+        ...
+
+    def predict(self, pose: FloatArray, control: FloatArray, dt: float) -> FloatArray:
+        ...
+
+    def sample(self, pose: FloatArray, control: FloatArray, dt: float, rng: np.random.Generator) -> FloatArray:
+        ...
+
+    def validate_control(self, control) -> FloatArray:
+        ...
+
+
+def _sinc_and_derivative(a: float) -> tuple[float, float]:
+    """``sin(a)/a`` and its derivative, accurate also for ``a`` near zero."""
+    if abs(a) < 1e-4:
+        a2 = a * a
+        return 1.0 - a2 / 6.0 + a2 * a2 / 120.0, -a / 3.0 + a * a2 / 30.0
+    s, c = math.sin(a), math.cos(a)
+    return s / a, (a * c - s) / (a * a)
+
+
+class VelocityMotionModel:
+    """Thrun's velocity motion model with controls ``(v, omega)``.
+
+    Parameters
+    ----------
+    alphas : sequence of 6 floats
+        Noise parameters ``(a1, ..., a6)`` of Thrun Table 5.3: the executed
+        controls are ``v + N(0, a1 v^2 + a2 w^2)``, ``w + N(0, a3 v^2 + a4 w^2)``
+        and a final rotation rate ``N(0, a5 v^2 + a6 w^2)``.
+    noise_floor : float
+        Variance added to each diagonal entry of ``R`` so that the filters'
+        information matrices stay well conditioned when the robot stands still.
+
+    Notes
+    -----
+    Implements ``SEIF.md``, "Velocity motion model". The arc is written as
+
+    .. math:: \\delta = (v\\Delta t\\,\\cos(\\theta+\\omega\\Delta t/2)\\,\\mathrm{sinc}(\\omega\\Delta t/2),
+              v\\Delta t\\,\\sin(\\theta+\\omega\\Delta t/2)\\,\\mathrm{sinc}(\\omega\\Delta t/2), \\omega\\Delta t)
+
+    which equals the ``v/w (sin(theta + w dt) - sin theta)`` form of the book
+    exactly (a product-to-sum identity) and is continuous at ``w = 0``, where
+    it becomes the straight-line limit ``(v dt cos theta, v dt sin theta, 0)``.
+    There is no threshold and no cancellation for small ``w``.
+    """
+
+    def __init__(
+        self,
+        alphas: tuple[float, float, float, float, float, float] = (0.01, 0.001, 0.001, 0.01, 0.0005, 0.0005),
+        noise_floor: float = 1e-9,
+    ) -> None:
+        alphas_array = as_finite_vector(alphas, "alphas", 6)
+        if np.any(alphas_array < 0):
+            raise ValueError(f"alphas must be non-negative, got {tuple(alphas_array)}")
+        self.alphas: tuple[float, ...] = tuple(float(a) for a in alphas_array)
+        self.noise_floor = as_positive_scalar(noise_floor, "noise_floor")
+
+    def __repr__(self) -> str:
+        return f"VelocityMotionModel(alphas={self.alphas}, noise_floor={self.noise_floor})"
+
+    # -- validation ---------------------------------------------------------
+    def validate_control(self, control) -> FloatArray:
+        """Return ``control`` as a finite ``(v, omega)`` array or raise."""
+        return as_finite_vector(control, "control", 2)
+
+    def _check(self, pose, control, dt) -> tuple[FloatArray, FloatArray, float]:
+        return (
+            as_finite_vector(pose, "pose", 3),
+            self.validate_control(control),
+            as_positive_scalar(dt, "dt"),
+        )
+
+    # -- deterministic model ------------------------------------------------
+    @staticmethod
+    def _displacement(theta: float, v: float, w: float, dt: float) -> tuple[float, float, float]:
+        half = 0.5 * w * dt
+        sinc, _ = _sinc_and_derivative(half)
+        mid = theta + half
+        return v * dt * math.cos(mid) * sinc, v * dt * math.sin(mid) * sinc, w * dt
+
+    def displacement(self, pose, control, dt) -> FloatArray:
+        """Pose increment ``delta`` of ``SEIF.md`` (angle not wrapped)."""
+        pose, control, dt = self._check(pose, control, dt)
+        return np.array(self._displacement(pose[2], control[0], control[1], dt))
+
+    def predict(self, pose, control, dt) -> FloatArray:
+        """Noise-free next pose ``g(u, x)`` with the heading wrapped."""
+        pose, control, dt = self._check(pose, control, dt)
+        dx, dy, dth = self._displacement(pose[2], control[0], control[1], dt)
+        return np.array([pose[0] + dx, pose[1] + dy, wrap_angle(float(pose[2] + dth))])
+
+    def jacobian_state(self, pose, control, dt) -> FloatArray:
+        """``G = I + Delta``, the Jacobian of ``g`` with respect to the pose (3, 3)."""
+        pose, control, dt = self._check(pose, control, dt)
+        dx, dy, _ = self._displacement(pose[2], control[0], control[1], dt)
+        return np.array([[1.0, 0.0, -dy], [0.0, 1.0, dx], [0.0, 0.0, 1.0]])
+
+    @staticmethod
+    def _jacobian_control(theta: float, v: float, w: float, dt: float) -> FloatArray:
+        half = 0.5 * w * dt
+        sinc, dsinc = _sinc_and_derivative(half)
+        mid = theta + half
+        c, s = math.cos(mid), math.sin(mid)
+        # d/dw of (v dt cos(mid) sinc(half)), with d mid/dw = d half/dw = dt/2
+        return np.array(
+            [
+                [dt * c * sinc, v * dt * 0.5 * dt * (-s * sinc + c * dsinc)],
+                [dt * s * sinc, v * dt * 0.5 * dt * (c * sinc + s * dsinc)],
+                [0.0, dt],
+            ]
+        )
+
+    def jacobian_control(self, pose, control, dt) -> FloatArray:
+        """``V = d g / d (v, omega)`` (3, 2), Thrun eq. 7.11."""
+        pose, control, dt = self._check(pose, control, dt)
+        return self._jacobian_control(pose[2], control[0], control[1], dt)
+
+    def control_covariance(self, control) -> FloatArray:
+        """``M = diag(a1 v^2 + a2 w^2, a3 v^2 + a4 w^2)`` (2, 2)."""
+        v, w = self.validate_control(control)
+        a1, a2, a3, a4, _, _ = self.alphas
+        return np.diag([a1 * v * v + a2 * w * w, a3 * v * v + a4 * w * w])
+
+    def noise_covariance(self, pose, control, dt) -> FloatArray:
+        """State-space noise ``R = V M V^T + gamma term + floor`` (3, 3)."""
+        return self.linearize(pose, control, dt)[2]
+
+    def linearize(self, pose, control, dt) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """``(delta, G, R)`` at ``pose`` for ``control`` over ``dt``.
+
+        Notes
+        -----
+        ``R = V M V^T + diag(0, 0, (a5 v^2 + a6 w^2) dt^2) + floor I``; the
+        last-but-one term is the final rotation of Thrun Table 5.3 integrated
+        over the step.
+        """
+        pose, control, dt = self._check(pose, control, dt)
+        theta, v, w = float(pose[2]), float(control[0]), float(control[1])
+        dx, dy, dth = self._displacement(theta, v, w, dt)
+        delta = np.array([dx, dy, dth])
+        jacobian = np.array([[1.0, 0.0, -dy], [0.0, 1.0, dx], [0.0, 0.0, 1.0]])
+        a1, a2, a3, a4, a5, a6 = self.alphas
+        vv, ww = v * v, w * w
+        V = self._jacobian_control(theta, v, w, dt)
+        noise = (V * np.array([a1 * vv + a2 * ww, a3 * vv + a4 * ww])) @ V.T
+        noise[2, 2] += (a5 * vv + a6 * ww) * dt * dt
+        noise[np.diag_indices(3)] += self.noise_floor
+        return delta, jacobian, noise
+
+    # -- stochastic model ---------------------------------------------------
+    def sample(self, pose, control, dt, rng: np.random.Generator) -> FloatArray:
+        """Draw the next true pose (Thrun Table 5.3, ``sample_motion_model_velocity``)."""
+        pose, control, dt = self._check(pose, control, dt)
+        if not isinstance(rng, np.random.Generator):
+            raise TypeError(f"rng must be a numpy.random.Generator, got {type(rng).__name__}")
+        v, w = float(control[0]), float(control[1])
+        a1, a2, a3, a4, a5, a6 = self.alphas
+        vv, ww = v * v, w * w
+        noise = rng.standard_normal(3)
+        v_hat = v + math.sqrt(a1 * vv + a2 * ww) * noise[0]
+        w_hat = w + math.sqrt(a3 * vv + a4 * ww) * noise[1]
+        gamma = math.sqrt(a5 * vv + a6 * ww) * noise[2]
+        dx, dy, dth = self._displacement(float(pose[2]), v_hat, w_hat, dt)
+        return np.array([pose[0] + dx, pose[1] + dy, wrap_angle(float(pose[2] + dth + gamma * dt))])
+
+
+class RangeBearingSensor:
+    """Range-bearing landmark sensor with a limited range and field of view.
+
+    Parameters
+    ----------
+    sigma_range : float
+        Standard deviation of the range noise, metres.
+    sigma_bearing : float
+        Standard deviation of the bearing noise, radians.
+    max_range : float
+        Landmarks farther than this are not seen.
+    fov : float
+        Full opening angle of the sensor, radians, centred on the heading;
+        ``2 pi`` sees all around.
+
+    Notes
+    -----
+    Implements ``SEIF.md``, "Range-bearing sensor":
+    ``z = (sqrt(q), atan2(d_y, d_x) - theta)`` with ``d = m - (x, y)``, and the
+    Jacobian ``H`` with columns ``(x, y, theta, m_x, m_y)``.
+    """
+
+    def __init__(
+        self,
+        sigma_range: float = 0.1,
+        sigma_bearing: float = math.radians(2.0),
+        max_range: float = 8.0,
+        fov: float = 2.0 * math.pi,
+    ) -> None:
+        self.sigma_range = as_positive_scalar(sigma_range, "sigma_range")
+        self.sigma_bearing = as_positive_scalar(sigma_bearing, "sigma_bearing")
+        self.max_range = as_positive_scalar(max_range, "max_range")
+        self.fov = as_positive_scalar(fov, "fov")
+        if self.fov > 2.0 * math.pi + 1e-12:
+            raise ValueError(f"fov must be at most 2*pi, got {self.fov}")
+        self.noise_covariance: FloatArray = np.diag([self.sigma_range**2, self.sigma_bearing**2])
+        self.noise_covariance.setflags(write=False)
+
+    def __repr__(self) -> str:
+        return (
+            f"RangeBearingSensor(sigma_range={self.sigma_range}, sigma_bearing={self.sigma_bearing}, "
+            f"max_range={self.max_range}, fov={self.fov})"
+        )
+
+    @staticmethod
+    def _landmarks(landmarks, name: str = "landmarks") -> FloatArray:
+        array = np.asarray(landmarks, dtype=np.float64) if not isinstance(landmarks, (str, bytes)) else None
+        if array is not None and array.ndim == 1 and array.shape == (2,):
+            array = array[None, :]
+        return as_finite_array(array if array is not None else landmarks, name, (None, 2))
+
+    def predict(self, pose, landmarks) -> FloatArray:
+        """Expected ``(range, bearing)`` of each landmark, shape (m, 2)."""
+        pose = as_finite_vector(pose, "pose", 3)
+        landmarks = self._landmarks(landmarks)
+        d = landmarks - pose[:2]
+        return np.column_stack([np.hypot(d[:, 0], d[:, 1]), wrap_angle(np.arctan2(d[:, 1], d[:, 0]) - pose[2])])
+
+    def jacobian(self, pose, landmarks) -> FloatArray:
+        """``H`` of ``SEIF.md`` for each landmark, shape (m, 2, 5)."""
+        pose = as_finite_vector(pose, "pose", 3)
+        landmarks = self._landmarks(landmarks)
+        d = landmarks - pose[:2]
+        q = np.einsum("ij,ij->i", d, d)
+        if np.any(q <= 0.0):
+            raise ValueError("landmarks must not coincide with the robot position")
+        r = np.sqrt(q)
+        dx, dy = d[:, 0], d[:, 1]
+        H = np.zeros((len(d), 2, 5))
+        H[:, 0, 0], H[:, 0, 1], H[:, 0, 3], H[:, 0, 4] = -dx / r, -dy / r, dx / r, dy / r
+        H[:, 1, 0], H[:, 1, 1], H[:, 1, 2], H[:, 1, 3], H[:, 1, 4] = dy / q, -dx / q, -1.0, -dy / q, dx / q
+        return H
+
+    def inverse(self, pose, ranges, bearings) -> FloatArray:
+        """Landmark positions ``(x + r cos(phi + theta), y + r sin(phi + theta))``, shape (m, 2)."""
+        pose = as_finite_vector(pose, "pose", 3)
+        ranges = as_finite_array(np.atleast_1d(ranges), "ranges", (None,))
+        bearings = as_finite_array(np.atleast_1d(bearings), "bearings", (len(ranges),))
+        angle = bearings + pose[2]
+        return np.column_stack([pose[0] + ranges * np.cos(angle), pose[1] + ranges * np.sin(angle)])
+
+    def inverse_jacobians(self, pose, ranges, bearings) -> tuple[FloatArray, FloatArray]:
+        """Jacobians of :meth:`inverse` with respect to the pose (m, 2, 3) and to ``(r, phi)`` (m, 2, 2)."""
+        pose = as_finite_vector(pose, "pose", 3)
+        ranges = as_finite_array(np.atleast_1d(ranges), "ranges", (None,))
+        bearings = as_finite_array(np.atleast_1d(bearings), "bearings", (len(ranges),))
+        angle = bearings + pose[2]
+        c, s = np.cos(angle), np.sin(angle)
+        wrt_pose = np.zeros((len(ranges), 2, 3))
+        wrt_pose[:, 0, 0] = 1.0
+        wrt_pose[:, 1, 1] = 1.0
+        wrt_pose[:, 0, 2] = -ranges * s
+        wrt_pose[:, 1, 2] = ranges * c
+        wrt_measurement = np.stack([np.stack([c, -ranges * s], -1), np.stack([s, ranges * c], -1)], 1)
+        return wrt_pose, wrt_measurement
+
+    def visible(self, pose, landmarks) -> NDArray[np.bool_]:
+        """Mask of the landmarks inside the range and field of view (no noise)."""
+        z = self.predict(pose, landmarks)
+        in_fov = np.abs(z[:, 1]) <= 0.5 * self.fov if self.fov < 2.0 * math.pi else np.ones(len(z), bool)
+        return (z[:, 0] <= self.max_range) & (z[:, 0] > 0.0) & in_fov
+
+    def sample(self, pose, landmarks, rng: np.random.Generator, ids=None) -> tuple[FloatArray, FloatArray, NDArray[np.int64]]:
+        """Noisy ``(ranges, bearings, ids)`` of the visible landmarks.
+
+        ``ids`` defaults to the landmarks' row indices. Ranges are kept
+        positive (a draw below zero is reflected), bearings wrapped.
+        """
+        if not isinstance(rng, np.random.Generator):
+            raise TypeError(f"rng must be a numpy.random.Generator, got {type(rng).__name__}")
+        landmarks = self._landmarks(landmarks)
+        if ids is None:
+            all_ids = np.arange(len(landmarks), dtype=np.int64)
+        else:
+            all_ids = np.asarray(ids)
+            if all_ids.shape != (len(landmarks),) or not np.issubdtype(all_ids.dtype, np.integer):
+                raise ValueError("ids must be one integer per landmark")
+        z = self.predict(pose, landmarks)
+        mask = self.visible(pose, landmarks)
+        noise = rng.standard_normal((int(mask.sum()), 2)) * (self.sigma_range, self.sigma_bearing)
+        ranges = np.abs(z[mask, 0] + noise[:, 0])
+        bearings = wrap_angle(z[mask, 1] + noise[:, 1])
+        return ranges, bearings, all_ids[mask].astype(np.int64)

@@ -1,0 +1,324 @@
+"""Compiled kernels of the SEIF steps (numba).
+
+Each kernel here is the fast twin of a reference function: gather and scatter
+of :class:`~seif_gym.slam.information.InformationStore`, and
+:func:`~seif_gym.slam.seif.motion_update`, :func:`~seif_gym.slam.seif.measurement_update`,
+:func:`~seif_gym.slam.seif.sparsify` and
+:func:`~seif_gym.slam.seif.recover_mean_amortized`. ``tests/test_kernels.py``
+checks each pair equal to round-off. Why compiled: the blocks are small
+(19 x 19 for eight active landmarks), so a numpy version spends most of its
+time in call overhead, not arithmetic.
+
+The kernels work on the store's arrays in place and assume the caller made
+room (``reserve_landmarks`` / ``reserve_degree``).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+TWO_PI = 2.0 * np.pi
+
+
+@njit(cache=True)
+def _find(neighbour_index, neighbour_count, i, j):
+    for slot in range(neighbour_count[i]):
+        if neighbour_index[i, slot] == j:
+            return slot
+    return -1
+
+
+@njit(cache=True)
+def gather(robot_info, robot_links, landmark_info, neighbour_index, neighbour_info, neighbour_count,
+           information_vector, mean, block_position, landmarks):  # fmt: skip
+    """Dense ``Omega``, ``xi``, ``mu`` over the robot and ``landmarks`` (robot first)."""
+    count = landmarks.shape[0]
+    size = 3 + 2 * count
+    omega = np.zeros((size, size))
+    xi = np.empty(size)
+    mu = np.empty(size)
+    for a in range(3):
+        xi[a] = information_vector[a]
+        mu[a] = mean[a]
+        for b in range(3):
+            omega[a, b] = robot_info[a, b]
+    for p in range(count):
+        block_position[landmarks[p]] = p
+    for p in range(count):
+        i = landmarks[p]
+        o = 3 + 2 * p
+        for a in range(2):
+            xi[o + a] = information_vector[3 + 2 * i + a]
+            mu[o + a] = mean[3 + 2 * i + a]
+            for b in range(3):
+                omega[b, o + a] = robot_links[i, b, a]
+                omega[o + a, b] = robot_links[i, b, a]
+            for b in range(2):
+                omega[o + a, o + b] = landmark_info[i, a, b]
+        for slot in range(neighbour_count[i]):
+            q = block_position[neighbour_index[i, slot]]
+            if q >= 0:
+                oq = 3 + 2 * q
+                for a in range(2):
+                    for b in range(2):
+                        omega[o + a, oq + b] = neighbour_info[i, slot, a, b]
+    for p in range(count):
+        block_position[landmarks[p]] = -1
+    return omega, xi, mu
+
+
+@njit(cache=True)
+def scatter(robot_info, robot_links, landmark_info, neighbour_index, neighbour_info, neighbour_count,
+            information_vector, landmarks, omega, xi):  # fmt: skip
+    """Write a dense block over the robot and ``landmarks`` back into the store."""
+    count = landmarks.shape[0]
+    for a in range(3):
+        information_vector[a] = xi[a]
+        for b in range(3):
+            robot_info[a, b] = omega[a, b]
+    for p in range(count):
+        i = landmarks[p]
+        o = 3 + 2 * p
+        for a in range(2):
+            information_vector[3 + 2 * i + a] = xi[o + a]
+            for b in range(3):
+                robot_links[i, b, a] = omega[b, o + a]
+            for b in range(2):
+                landmark_info[i, a, b] = omega[o + a, o + b]
+        for q in range(count):
+            if q == p:
+                continue
+            j = landmarks[q]
+            oq = 3 + 2 * q
+            slot = _find(neighbour_index, neighbour_count, i, j)
+            if slot < 0:
+                nonzero = False
+                for a in range(2):
+                    for b in range(2):
+                        if omega[o + a, oq + b] != 0.0:
+                            nonzero = True
+                if not nonzero:
+                    continue
+                slot = neighbour_count[i]
+                neighbour_index[i, slot] = j
+                neighbour_count[i] += 1
+            for a in range(2):
+                for b in range(2):
+                    neighbour_info[i, slot, a, b] = omega[o + a, oq + b]
+
+
+@njit(cache=True)
+def _inverse_3x3(m):
+    inv = np.empty((3, 3))
+    inv[0, 0] = m[1, 1] * m[2, 2] - m[1, 2] * m[2, 1]
+    inv[0, 1] = m[0, 2] * m[2, 1] - m[0, 1] * m[2, 2]
+    inv[0, 2] = m[0, 1] * m[1, 2] - m[0, 2] * m[1, 1]
+    inv[1, 0] = m[1, 2] * m[2, 0] - m[1, 0] * m[2, 2]
+    inv[1, 1] = m[0, 0] * m[2, 2] - m[0, 2] * m[2, 0]
+    inv[1, 2] = m[0, 2] * m[1, 0] - m[0, 0] * m[1, 2]
+    inv[2, 0] = m[1, 0] * m[2, 1] - m[1, 1] * m[2, 0]
+    inv[2, 1] = m[0, 1] * m[2, 0] - m[0, 0] * m[2, 1]
+    inv[2, 2] = m[0, 0] * m[1, 1] - m[0, 1] * m[1, 0]
+    det = m[0, 0] * inv[0, 0] + m[0, 1] * inv[1, 0] + m[0, 2] * inv[2, 0]
+    return inv / det
+
+
+@njit(cache=True)
+def motion_update_block(omega, xi, mu, delta, jacobian, noise):
+    """Fast :func:`seif_gym.slam.seif.motion_update`, in place on the block.
+
+    Uses ``Phi = (I + Psi)^T Omega (I + Psi)`` with ``I + Psi = blockdiag(G^-1, I)``
+    (the same matrix as ``Omega + lam``, without forming ``lam``), and
+    ``xi_bar = xi + Omega_bar mu_bar - Omega mu``, which is
+    ``xi + (lam - kappa) mu + Omega_bar F_x^T delta`` rearranged.
+    """
+    size = xi.shape[0]
+    g_inv = _inverse_3x3(jacobian)
+    omega_mu = omega @ mu
+    # Phi: robot rows and columns transformed by G^-T ... G^-1
+    phi = omega.copy()
+    top = np.ascontiguousarray(g_inv.T) @ np.ascontiguousarray(omega[:3, :])
+    for a in range(3):
+        for c in range(size):
+            phi[a, c] = top[a, c]
+            phi[c, a] = top[a, c]
+    corner = np.ascontiguousarray(top[:, :3]) @ g_inv
+    phi[:3, :3] = corner
+    # kappa = Phi_x (R^-1 + Phi_xx)^-1 Phi_x^T, symmetric rank 3
+    inner = _inverse_3x3(_inverse_3x3(noise) + corner)
+    inner = 0.5 * (inner + inner.T)
+    phi_x = np.ascontiguousarray(phi[:, :3])
+    left = phi_x @ inner
+    kappa = left @ phi_x.T
+    omega_bar = phi - kappa
+    for a in range(size):
+        for b in range(a + 1, size):
+            value = 0.5 * (omega_bar[a, b] + omega_bar[b, a])
+            omega_bar[a, b] = value
+            omega_bar[b, a] = value
+    mu_bar = mu.copy()
+    for a in range(3):
+        mu_bar[a] += delta[a]
+    xi_bar = xi + omega_bar @ mu_bar - omega_mu
+    return omega_bar, xi_bar, mu_bar
+
+
+@njit(cache=True)
+def predict(robot_info, robot_links, landmark_info, neighbour_index, neighbour_info, neighbour_count,
+            information_vector, mean, block_position, active, delta, jacobian, noise):  # fmt: skip
+    """Gather, motion update, scatter; ``mean[:3] += delta`` (heading not wrapped)."""
+    omega, xi, mu = gather(robot_info, robot_links, landmark_info, neighbour_index, neighbour_info,
+                           neighbour_count, information_vector, mean, block_position, active)  # fmt: skip
+    omega_bar, xi_bar, mu_bar = motion_update_block(omega, xi, mu, delta, jacobian, noise)
+    scatter(robot_info, robot_links, landmark_info, neighbour_index, neighbour_info, neighbour_count,
+            information_vector, active, omega_bar, xi_bar)  # fmt: skip
+    for a in range(3):
+        mean[a] = mu_bar[a]
+
+
+@njit(cache=True)
+def _wrap(angle):
+    return (angle + np.pi) % TWO_PI - np.pi
+
+
+@njit(cache=True)
+def measurement_update(robot_info, robot_links, landmark_info, information_vector, mean,
+                       indices, ranges, bearings, noise_info):  # fmt: skip
+    """Fast :func:`seif_gym.slam.seif.measurement_update`, straight into the store."""
+    x = mean[0]
+    y = mean[1]
+    theta = mean[2]
+    H = np.zeros((2, 5))
+    state = np.empty(5)
+    innovation = np.empty(2)
+    for k in range(indices.shape[0]):
+        i = indices[k]
+        o = 3 + 2 * i
+        dx = mean[o] - x
+        dy = mean[o + 1] - y
+        q = dx * dx + dy * dy
+        sqrt_q = np.sqrt(q)
+        H[0, 0] = -dx / sqrt_q
+        H[0, 1] = -dy / sqrt_q
+        H[0, 2] = 0.0
+        H[0, 3] = dx / sqrt_q
+        H[0, 4] = dy / sqrt_q
+        H[1, 0] = dy / q
+        H[1, 1] = -dx / q
+        H[1, 2] = -1.0
+        H[1, 3] = -dy / q
+        H[1, 4] = dx / q
+        innovation[0] = ranges[k] - sqrt_q
+        innovation[1] = _wrap(bearings[k] - (np.arctan2(dy, dx) - theta))
+        state[0] = x
+        state[1] = y
+        state[2] = theta
+        state[3] = mean[o]
+        state[4] = mean[o + 1]
+        HtQ = H.T @ noise_info
+        info = HtQ @ H
+        vec = HtQ @ (innovation + H @ state)
+        for a in range(3):
+            information_vector[a] += vec[a]
+            for b in range(3):
+                robot_info[a, b] += info[a, b]
+            for b in range(2):
+                robot_links[i, a, b] += info[a, 3 + b]
+        for a in range(2):
+            information_vector[o + a] += vec[3 + a]
+            for b in range(2):
+                landmark_info[i, a, b] += info[3 + a, 3 + b]
+
+
+@njit(cache=True)
+def _schur_term(omega, indices):
+    """``Omega[:, idx] Omega[idx, idx]^-1 Omega[idx, :]``, exactly symmetric (Cholesky)."""
+    k = indices.shape[0]
+    size = omega.shape[0]
+    sub = np.empty((k, k))
+    rows = np.empty((k, size))
+    for a in range(k):
+        for c in range(size):
+            rows[a, c] = omega[indices[a], c]
+        for b in range(k):
+            sub[a, b] = omega[indices[a], indices[b]]
+    lower = np.linalg.cholesky(sub)
+    # W = L^-1 rows by forward substitution; term = W^T W
+    w = rows.copy()
+    for a in range(k):
+        for b in range(a):
+            for c in range(size):
+                w[a, c] -= lower[a, b] * w[b, c]
+        for c in range(size):
+            w[a, c] /= lower[a, a]
+    return w.T @ w
+
+
+@njit(cache=True)
+def sparsify_block(omega, xi, mu, num_kept):
+    """Fast :func:`seif_gym.slam.seif.sparsify` on the block (robot, m+, m0)."""
+    size = xi.shape[0]
+    start = 3 + 2 * num_kept
+    m0 = np.arange(start, size)
+    xm0 = np.concatenate((np.arange(3), m0))
+    x = np.arange(3)
+    omega_tilde = omega - _schur_term(omega, m0) + _schur_term(omega, xm0) - _schur_term(omega, x)
+    for a in range(3):
+        for c in range(start, size):
+            omega_tilde[a, c] = 0.0
+            omega_tilde[c, a] = 0.0
+    for a in range(size):
+        for b in range(a + 1, size):
+            value = 0.5 * (omega_tilde[a, b] + omega_tilde[b, a])
+            omega_tilde[a, b] = value
+            omega_tilde[b, a] = value
+    xi_tilde = xi + (omega_tilde - omega) @ mu
+    return omega_tilde, xi_tilde
+
+
+@njit(cache=True)
+def sparsify(robot_info, robot_links, landmark_info, neighbour_index, neighbour_info, neighbour_count,
+             information_vector, mean, block_position, block, num_kept):  # fmt: skip
+    """Gather the (robot, m+, m0) block, sparsify, scatter back."""
+    omega, xi, mu = gather(robot_info, robot_links, landmark_info, neighbour_index, neighbour_info,
+                           neighbour_count, information_vector, mean, block_position, block)  # fmt: skip
+    omega_tilde, xi_tilde = sparsify_block(omega, xi, mu, num_kept)
+    scatter(robot_info, robot_links, landmark_info, neighbour_index, neighbour_info, neighbour_count,
+            information_vector, block, omega_tilde, xi_tilde)  # fmt: skip
+
+
+@njit(cache=True)
+def _solve_2x2(m, r0, r1):
+    det = m[0, 0] * m[1, 1] - m[0, 1] * m[1, 0]
+    return (m[1, 1] * r0 - m[0, 1] * r1) / det, (m[0, 0] * r1 - m[1, 0] * r0) / det
+
+
+@njit(cache=True)
+def recover_mean(robot_info, robot_links, landmark_info, neighbour_index, neighbour_info, neighbour_count,
+                 information_vector, mean, landmarks, active):  # fmt: skip
+    """Fast :func:`seif_gym.slam.seif.recover_mean_amortized`."""
+    for k in range(landmarks.shape[0]):
+        i = landmarks[k]
+        o = 3 + 2 * i
+        r0 = information_vector[o]
+        r1 = information_vector[o + 1]
+        for b in range(3):
+            r0 -= robot_links[i, b, 0] * mean[b]
+            r1 -= robot_links[i, b, 1] * mean[b]
+        for slot in range(neighbour_count[i]):
+            oj = 3 + 2 * neighbour_index[i, slot]
+            r0 -= neighbour_info[i, slot, 0, 0] * mean[oj] + neighbour_info[i, slot, 0, 1] * mean[oj + 1]
+            r1 -= neighbour_info[i, slot, 1, 0] * mean[oj] + neighbour_info[i, slot, 1, 1] * mean[oj + 1]
+        mean[o], mean[o + 1] = _solve_2x2(landmark_info[i], r0, r1)
+    rhs = np.empty(3)
+    for a in range(3):
+        rhs[a] = information_vector[a]
+    for k in range(active.shape[0]):
+        i = active[k]
+        o = 3 + 2 * i
+        for a in range(3):
+            rhs[a] -= robot_links[i, a, 0] * mean[o] + robot_links[i, a, 1] * mean[o + 1]
+    pose = np.linalg.solve(robot_info, rhs)
+    for a in range(3):
+        mean[a] = pose[a]

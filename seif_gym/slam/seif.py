@@ -1,0 +1,474 @@
+"""The Sparse Extended Information Filter (Thrun et al., *Probabilistic Robotics*, ch. 12).
+
+Each of the four SEIF steps of ``SEIF.md`` has one function here, written as
+plainly as the equations, over a dense *block* of the information matrix:
+the robot and the landmarks the step touches (its active landmarks, or the
+ones it observes). The block is gathered from and scattered back to an
+:class:`~seif_gym.slam.information.InformationStore`, so every step costs time
+in the size of the active set, never in the size of the map:
+
+1. :func:`motion_update`        ``SEIF.md`` section 1
+2. :func:`measurement_update`   ``SEIF.md`` section 2
+3. :func:`sparsify`             ``SEIF.md`` section 3
+4. :func:`recover_mean_amortized` ``SEIF.md`` section 4 (and :func:`recover_mean_exact`)
+
+These functions are the *reference path*. :class:`SEIF` runs, by default,
+compiled versions of the same steps from :mod:`seif_gym.slam._kernels`, which
+the tests check equal to these (``implementation="reference"`` runs these).
+"""
+
+from __future__ import annotations
+
+from typing import Any, ClassVar
+
+import numpy as np
+import scipy.linalg
+import scipy.sparse
+import scipy.sparse.linalg
+from numpy.typing import NDArray
+
+from seif_gym.slam import _kernels
+from seif_gym.slam.base import SlamFilter
+from seif_gym.slam.information import InformationStore, block_slices
+from seif_gym.slam.models import wrap_angle
+
+__all__ = [
+    "SEIF",
+    "motion_update",
+    "measurement_update",
+    "sparsify",
+    "recover_mean_amortized",
+    "recover_mean_exact",
+]
+
+FloatArray = NDArray[np.float64]
+IndexArray = NDArray[np.int64]
+
+
+# ---------------------------------------------------------------------------
+# The four steps, reference path (dense blocks, literal equations)
+# ---------------------------------------------------------------------------
+def motion_update(
+    omega: FloatArray, xi: FloatArray, mu: FloatArray, delta: FloatArray, jacobian: FloatArray, noise: FloatArray
+) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """SEIF motion update on the block of the robot and its active landmarks.
+
+    Parameters
+    ----------
+    omega, xi, mu : ndarray
+        Information matrix (s, s), vector (s,) and mean (s,) of the block,
+        robot first.
+    delta : ndarray, shape (3,)
+        Pose increment of the motion model.
+    jacobian : ndarray, shape (3, 3)
+        ``G = I + Delta``, the motion Jacobian with respect to the pose.
+    noise : ndarray, shape (3, 3)
+        State-space motion noise ``R``.
+
+    Returns
+    -------
+    omega_bar, xi_bar, mu_bar : ndarray
+        The predicted block. ``mu_bar``'s heading is *not* wrapped here.
+
+    Notes
+    -----
+    ``SEIF.md`` section 1 (Thrun Table 12.2)::
+
+        Psi   = F_x^T [(I + Delta)^-1 - I] F_x
+        lam   = Psi^T Omega + Omega Psi + Psi^T Omega Psi
+        Phi   = Omega + lam
+        kappa = Phi F_x^T (R^-1 + F_x Phi F_x^T)^-1 F_x Phi
+        Omega_bar = Phi - kappa
+        xi_bar    = xi + (lam - kappa) mu + Omega_bar F_x^T delta
+        mu_bar    = mu + F_x^T delta
+
+    All of ``lam`` and ``kappa`` lies in the rows and columns of the robot
+    and its active landmarks, which is why the block is enough.
+    """
+    size = len(xi)
+    F_x = np.zeros((3, size))
+    F_x[:, :3] = np.eye(3)
+    psi = F_x.T @ (np.linalg.inv(jacobian) - np.eye(3)) @ F_x
+    lam = psi.T @ omega + omega @ psi + psi.T @ omega @ psi
+    phi = omega + lam
+    kappa = phi @ F_x.T @ np.linalg.inv(np.linalg.inv(noise) + F_x @ phi @ F_x.T) @ F_x @ phi
+    omega_bar = phi - kappa
+    omega_bar = 0.5 * (omega_bar + omega_bar.T)
+    xi_bar = xi + (lam - kappa) @ mu + omega_bar @ F_x.T @ delta
+    mu_bar = mu + F_x.T @ delta
+    return omega_bar, xi_bar, mu_bar
+
+
+def measurement_update(
+    omega: FloatArray,
+    xi: FloatArray,
+    mu: FloatArray,
+    ranges: FloatArray,
+    bearings: FloatArray,
+    noise_info: FloatArray,
+) -> tuple[FloatArray, FloatArray]:
+    """Add range-bearing measurements to the block of the robot and the observed landmarks.
+
+    The p-th measurement is of the p-th landmark of the block (block rows
+    ``3 + 2p, 4 + 2p``); ``noise_info`` is ``Q^-1``.
+
+    Notes
+    -----
+    ``SEIF.md`` section 2 (Thrun Table 12.3), linearised at ``mu``::
+
+        Omega = Omega_bar + sum_i H_i^T Q^-1 H_i
+        xi    = xi_bar    + sum_i H_i^T Q^-1 [wrap(z_i - z_hat_i) + H_i mu_bar]
+
+    The bearing innovation is wrapped; ``xi`` itself never is.
+    """
+    omega = omega.copy()
+    xi = xi.copy()
+    x, y, theta = mu[:3]
+    for p, (r, phi) in enumerate(zip(ranges, bearings)):
+        j = slice(3 + 2 * p, 5 + 2 * p)
+        d = mu[j] - (x, y)
+        q = float(d @ d)
+        sqrt_q = np.sqrt(q)
+        z_hat = np.array([sqrt_q, np.arctan2(d[1], d[0]) - theta])
+        H_small = np.array(
+            [
+                [-sqrt_q * d[0], -sqrt_q * d[1], 0.0, sqrt_q * d[0], sqrt_q * d[1]],
+                [d[1], -d[0], -q, -d[1], d[0]],
+            ]
+        ) / q
+        H = np.zeros((2, len(xi)))
+        H[:, :3] = H_small[:, :3]
+        H[:, j] = H_small[:, 3:]
+        innovation = np.array([r - z_hat[0], wrap_angle(float(phi - z_hat[1]))])
+        omega += H.T @ noise_info @ H
+        xi += H.T @ noise_info @ (innovation + H @ mu)
+    return 0.5 * (omega + omega.T), xi
+
+
+def sparsify(omega: FloatArray, xi: FloatArray, mu: FloatArray, num_kept: int) -> tuple[FloatArray, FloatArray]:
+    """Remove the robot's links to the last active landmarks of the block.
+
+    The block holds the robot, then ``num_kept`` landmarks that stay active
+    (``m+``), then the landmarks to deactivate (``m0``). Passive landmarks
+    (``m-``) are not in the block: every term below is zero outside it.
+
+    Notes
+    -----
+    ``SEIF.md`` section 3 (Thrun Table 12.4), with ``Omega^0`` the block
+    itself (conditioning on ``m- = 0`` removes only rows outside it)::
+
+        Omega~ = Omega - Omega0 F_m0 (F_m0^T Omega0 F_m0)^-1 F_m0^T Omega0
+                       + Omega0 F_xm0 (F_xm0^T Omega0 F_xm0)^-1 F_xm0^T Omega0
+                       - Omega F_x (F_x^T Omega F_x)^-1 F_x^T Omega
+        xi~    = xi + (Omega~ - Omega) mu
+
+    The robot-``m0`` blocks of ``Omega~`` are zero in exact arithmetic; they
+    are set to exact zeros before ``xi~`` is formed, so the mean is kept to
+    round-off.
+    """
+    size = len(xi)
+    start_m0 = 3 + 2 * num_kept
+    x = np.arange(3)
+    m0 = np.arange(start_m0, size)
+    xm0 = np.concatenate([x, m0])
+
+    def project(indices: IndexArray, matrix: FloatArray) -> FloatArray:
+        F = np.zeros((size, len(indices)))
+        F[indices, np.arange(len(indices))] = 1.0
+        return matrix @ F @ np.linalg.solve(F.T @ matrix @ F, F.T @ matrix)
+
+    omega_tilde = omega - project(m0, omega) + project(xm0, omega) - project(x, omega)
+    omega_tilde[np.ix_(x, m0)] = 0.0
+    omega_tilde[np.ix_(m0, x)] = 0.0
+    omega_tilde = 0.5 * (omega_tilde + omega_tilde.T)
+    xi_tilde = xi + (omega_tilde - omega) @ mu
+    return omega_tilde, xi_tilde
+
+
+def recover_mean_amortized(store: InformationStore, landmarks: IndexArray, active: IndexArray) -> None:
+    """Coordinate descent on ``1/2 mu^T Omega mu - xi^T mu`` for some landmarks, then the robot.
+
+    Updates ``store.mean`` in place: each landmark of ``landmarks`` in turn,
+    then the robot (whose neighbours are the ``active`` landmarks).
+
+    Notes
+    -----
+    ``SEIF.md`` section 4 (Thrun Table 12.5)::
+
+        mu_i = Omega_ii^-1 (xi_i - sum_{j != i} Omega_ij mu_j)
+    """
+    mean, xi = store.mean, store.information_vector
+    for i in landmarks:
+        rows = slice(3 + 2 * i, 5 + 2 * i)
+        rhs = xi[rows] - store.robot_links[i].T @ mean[:3]
+        for slot in range(store.neighbour_count[i]):
+            j = store.neighbour_index[i, slot]
+            rhs = rhs - store.neighbour_info[i, slot] @ mean[3 + 2 * j : 5 + 2 * j]
+        mean[rows] = np.linalg.solve(store.landmark_info[i], rhs)
+    rhs = xi[:3].copy()
+    for i in active:
+        rhs -= store.robot_links[i] @ mean[3 + 2 * i : 5 + 2 * i]
+    mean[:3] = np.linalg.solve(store.robot_info, rhs)
+
+
+def recover_mean_exact(store: InformationStore) -> None:
+    """``mu = Omega^-1 xi`` by a sparse factorisation (``SEIF.md`` section 4, exact).
+
+    Costs O(n) to O(n^1.5) for the graphs of SLAM; the evaluation and the tests
+    use it as ground truth, and ``mean_recovery="exact"`` runs it every step.
+    """
+    omega = store.to_sparse().tocsc()
+    solver = scipy.sparse.linalg.splu(omega, permc_spec="MMD_AT_PLUS_A")
+    store.mean[: store.state_dim] = solver.solve(store.information_vector_view())
+
+
+def _rewrap_heading(store: InformationStore, active: IndexArray) -> None:
+    """Wrap the heading of ``mu`` into ``[-pi, pi)`` and shift ``xi`` with it.
+
+    Moving ``mu_theta`` by ``c`` moves ``Omega mu`` by ``c`` times the heading
+    column of ``Omega``; ``xi`` is moved by the same amount so that the
+    residual ``xi - Omega mu`` (zero for an exact mean) is unchanged. The
+    heading column is non-zero only in the robot row and the active landmarks.
+    """
+    theta = float(store.mean[2])
+    shift = wrap_angle(theta) - theta
+    if shift == 0.0:
+        return
+    store.mean[2] += shift
+    store.information_vector[:3] += store.robot_info[:, 2] * shift
+    for i in active:
+        store.information_vector[3 + 2 * i : 5 + 2 * i] += store.robot_links[i][2] * shift
+
+
+# ---------------------------------------------------------------------------
+# The filter
+# ---------------------------------------------------------------------------
+class SEIF(SlamFilter):
+    """Sparse Extended Information Filter SLAM with known correspondences.
+
+    Parameters
+    ----------
+    motion, sensor, initial_pose, initial_pose_cov
+        See :class:`~seif_gym.slam.base.SlamFilter`.
+    max_active : int or None, default 8
+        Bound ``k`` on the active landmarks (those linked to the robot) after
+        each update; ``None`` never sparsifies (the SEIF is then the exact
+        EIF). More than ``k`` stay active only when more than ``k`` landmarks
+        were observed in the same update.
+    mean_recovery : {"amortized", "exact"}, default "amortized"
+        ``"amortized"``: constant-time coordinate descent on the active
+        landmarks, ``recovery_landmarks`` passive ones in round robin, and the
+        robot. ``"exact"``: a sparse solve of ``Omega mu = xi`` every update.
+    recovery_landmarks : int, default 8
+        Passive landmarks refined per update by amortized recovery.
+    implementation : {"compiled", "reference"}, default "compiled"
+        Compiled kernels, or the plain numpy functions of this module
+        (slow; for checking and reading).
+
+    Notes
+    -----
+    One ``predict`` is the motion update; one ``update`` is the measurement
+    update, then mean recovery, then sparsification (which keeps the
+    mean). See ``SEIF.md`` for the equations and the module functions for
+    each step.
+    """
+
+    OPTIONS: ClassVar[dict[str, Any]] = {
+        "max_active": 8,
+        "mean_recovery": "amortized",
+        "recovery_landmarks": 8,
+        "implementation": "compiled",
+    }
+
+    def _check_options(self, options: dict[str, Any]) -> None:
+        max_active = options["max_active"]
+        if max_active is not None:
+            if isinstance(max_active, bool) or not isinstance(max_active, (int, np.integer)):
+                raise TypeError(f"max_active must be a positive int or None, got {type(max_active).__name__}")
+            if max_active < 1:
+                raise ValueError(f"max_active must be a positive int or None, got {max_active}")
+        if options["mean_recovery"] not in ("amortized", "exact"):
+            raise ValueError(f"mean_recovery must be 'amortized' or 'exact', got {options['mean_recovery']!r}")
+        count = options["recovery_landmarks"]
+        if isinstance(count, bool) or not isinstance(count, (int, np.integer)):
+            raise TypeError(f"recovery_landmarks must be a non-negative int, got {type(count).__name__}")
+        if count < 0:
+            raise ValueError(f"recovery_landmarks must be a non-negative int, got {count}")
+        if options["implementation"] not in ("compiled", "reference"):
+            raise ValueError(f"implementation must be 'compiled' or 'reference', got {options['implementation']!r}")
+
+    def _initialize(self, pose: FloatArray, pose_cov: FloatArray) -> None:
+        self.max_active: int | None = None if self.options["max_active"] is None else int(self.options["max_active"])
+        self.mean_recovery: str = self.options["mean_recovery"]
+        self.recovery_landmarks = int(self.options["recovery_landmarks"])
+        self._compiled = self.options["implementation"] == "compiled"
+        self._store = InformationStore()
+        self._store.robot_info[:] = scipy.linalg.cho_solve(scipy.linalg.cho_factor(pose_cov), np.eye(3))
+        self._store.robot_info[:] = 0.5 * (self._store.robot_info + self._store.robot_info.T)
+        self._store.mean[:3] = pose
+        self._store.information_vector[:3] = self._store.robot_info @ pose
+        self._active: IndexArray = np.empty(0, dtype=np.int64)
+        self._last_observed: IndexArray = np.zeros(16, dtype=np.int64)
+        self._update_count = 0
+        self._round_robin = 0
+
+    # -- step 1 ------------------------------------------------------------------
+    def _predict(self, control: FloatArray, dt: float) -> None:
+        store = self._store
+        delta, jacobian, noise = self.motion.linearize(store.mean[:3], control, dt)
+        if self._compiled:
+            store.reserve_degree(self._active, len(self._active))
+            _kernels.predict(
+                store.robot_info, store.robot_links, store.landmark_info,
+                store.neighbour_index, store.neighbour_info, store.neighbour_count,
+                store.information_vector, store.mean, store.block_position,
+                self._active, delta, jacobian, noise,
+            )  # fmt: skip
+        else:
+            omega, xi, mu = store.gather(self._active)
+            omega, xi, mu = motion_update(omega, xi, mu, delta, jacobian, noise)
+            store.scatter(self._active, omega, xi)
+            store.mean[:3] = mu[:3]
+        _rewrap_heading(store, self._active)
+
+    # -- steps 2-4 ---------------------------------------------------------------
+    def _update(self, ranges: FloatArray, bearings: FloatArray, indices: IndexArray, is_new: NDArray[np.bool_]) -> None:
+        store = self._store
+        if np.any(is_new):
+            # zero information of their own: the measurement below supplies it (SEIF.md, sensor)
+            store.add_landmarks(self.sensor.inverse(store.mean[:3], ranges[is_new], bearings[is_new]))
+            if store.capacity > len(self._last_observed):
+                grown = np.zeros(store.capacity, dtype=np.int64)
+                grown[: len(self._last_observed)] = self._last_observed
+                self._last_observed = grown
+        self._update_count += 1
+        if len(indices):
+            if self._compiled:
+                _kernels.measurement_update(
+                    store.robot_info, store.robot_links, store.landmark_info,
+                    store.information_vector, store.mean, indices, ranges, bearings, self._measurement_info,
+                )  # fmt: skip
+            else:
+                omega, xi, mu = store.gather(indices)
+                omega, xi = measurement_update(omega, xi, mu, ranges, bearings, self._measurement_info)
+                store.scatter(indices, omega, xi)
+            self._last_observed[indices] = self._update_count
+            newly_active = indices[~np.isin(indices, self._active)]
+            self._active = np.concatenate([self._active, newly_active])
+        self._recover_mean()
+        self._sparsify(indices)
+
+    def _recover_mean(self) -> None:
+        store = self._store
+        if self.mean_recovery == "exact":
+            recover_mean_exact(store)
+        else:
+            landmarks = np.concatenate([self._passive_batch(), self._active])
+            if self._compiled:
+                _kernels.recover_mean(
+                    store.robot_info, store.robot_links, store.landmark_info,
+                    store.neighbour_index, store.neighbour_info, store.neighbour_count,
+                    store.information_vector, store.mean, landmarks, self._active,
+                )  # fmt: skip
+            else:
+                recover_mean_amortized(store, landmarks, self._active)
+        _rewrap_heading(store, self._active)
+
+    def _passive_batch(self) -> IndexArray:
+        """The next ``recovery_landmarks`` landmarks in round robin (active ones skipped later)."""
+        n = self.num_landmarks
+        count = min(self.recovery_landmarks, n)
+        if count == 0:
+            return np.empty(0, dtype=np.int64)
+        batch = (self._round_robin + np.arange(count)) % n
+        self._round_robin = (self._round_robin + count) % n
+        return batch[~np.isin(batch, self._active)]
+
+    def _sparsify(self, observed: IndexArray) -> None:
+        if self.max_active is None or len(self._active) <= self.max_active:
+            return
+        # the landmarks observed longest ago go first, never one observed in this update
+        candidates = self._active[~np.isin(self._active, observed)]
+        order = np.argsort(self._last_observed[candidates], kind="stable")
+        remove_count = min(len(self._active) - self.max_active, len(candidates))
+        deactivated = candidates[order[:remove_count]]
+        kept = self._active[~np.isin(self._active, deactivated)]
+        block = np.concatenate([kept, deactivated])
+        store = self._store
+        if self._compiled:
+            store.reserve_degree(block, len(block))
+            _kernels.sparsify(
+                store.robot_info, store.robot_links, store.landmark_info,
+                store.neighbour_index, store.neighbour_info, store.neighbour_count,
+                store.information_vector, store.mean, store.block_position, block, len(kept),
+            )  # fmt: skip
+        else:
+            omega, xi, mu = store.gather(block)
+            omega, xi = sparsify(omega, xi, mu, len(kept))
+            store.scatter(block, omega, xi)
+        self._active = kept
+
+    # -- read-only state -------------------------------------------------------------
+    @property
+    def active_landmarks(self) -> NDArray[np.int64]:
+        """Ids of the landmarks linked to the robot, shape (a,)."""
+        ids = self._ids[self._active]
+        ids.setflags(write=False)
+        return ids
+
+    @property
+    def information_matrix(self) -> scipy.sparse.csr_array:
+        """``Omega`` in state order (robot, then landmarks), as a ``scipy.sparse.csr_array``."""
+        return self._store.to_sparse()
+
+    @property
+    def information_vector(self) -> FloatArray:
+        """``xi`` in state order, shape (3 + 2n,)."""
+        xi = self._store.information_vector_view().copy()
+        xi.setflags(write=False)
+        return xi
+
+    def exact_mean(self) -> FloatArray:
+        """``Omega^-1 xi`` by a sparse solve, without changing the filter (O(n^1.5))."""
+        omega = self._store.to_sparse().tocsc()
+        return scipy.sparse.linalg.splu(omega, permc_spec="MMD_AT_PLUS_A").solve(self._store.information_vector_view())
+
+    def refine_mean(self, sweeps: int = 1) -> None:
+        """Run ``sweeps`` full coordinate-descent sweeps over all landmarks and the robot.
+
+        Costs O(n) per sweep; repeated, amortized recovery converges to
+        :meth:`exact_mean` (the tests check it).
+        """
+        if isinstance(sweeps, bool) or not isinstance(sweeps, (int, np.integer)) or sweeps < 0:
+            raise ValueError(f"sweeps must be a non-negative int, got {sweeps!r}")
+        everything = np.arange(self.num_landmarks, dtype=np.int64)
+        store = self._store
+        for _ in range(int(sweeps)):
+            if self._compiled:
+                _kernels.recover_mean(
+                    store.robot_info, store.robot_links, store.landmark_info,
+                    store.neighbour_index, store.neighbour_info, store.neighbour_count,
+                    store.information_vector, store.mean, everything, self._active,
+                )  # fmt: skip
+            else:
+                recover_mean_amortized(store, everything, self._active)
+            _rewrap_heading(store, self._active)
+
+    # -- SlamFilter hooks ------------------------------------------------------------
+    def _mean_vector(self) -> FloatArray:
+        return self._store.mean_view()
+
+    def _marginal_covariance(self, state_indices: IndexArray) -> FloatArray:
+        omega = self._store.to_sparse().tocsc()
+        solver = scipy.sparse.linalg.splu(omega, permc_spec="MMD_AT_PLUS_A")
+        unit = np.zeros((self._store.state_dim, len(state_indices)))
+        unit[state_indices, np.arange(len(state_indices))] = 1.0
+        cov = solver.solve(unit)[state_indices]
+        return 0.5 * (cov + cov.T)
+
+    def _full_covariance(self) -> FloatArray:
+        omega = self._store.to_sparse().toarray()
+        return scipy.linalg.cho_solve(scipy.linalg.cho_factor(omega), np.eye(len(omega)))
+
+    def _state_nbytes(self) -> int:
+        return self._store.nbytes() + self._active.nbytes + self._last_observed.nbytes

@@ -231,9 +231,9 @@ def _rewrap_heading(store: InformationStore, active: IndexArray) -> None:
     heading column is non-zero only in the robot row and the active landmarks.
     """
     theta = float(store.mean[2])
-    shift = wrap_angle(theta) - theta
-    if shift == 0.0:
+    if -np.pi <= theta < np.pi:
         return
+    shift = wrap_angle(theta) - theta
     store.mean[2] += shift
     store.information_vector[:3] += store.robot_info[:, 2] * shift
     for i in active:
@@ -308,7 +308,9 @@ class SEIF(SlamFilter):
         self._store.mean[:3] = pose
         self._store.information_vector[:3] = self._store.robot_info @ pose
         self._active: IndexArray = np.empty(0, dtype=np.int64)
-        self._last_observed: IndexArray = np.zeros(16, dtype=np.int64)
+        # per landmark: is it active, and the update count when it was last observed
+        self._is_active: NDArray[np.bool_] = np.zeros(self._store.capacity, dtype=bool)
+        self._last_observed: IndexArray = np.zeros(self._store.capacity, dtype=np.int64)
         self._update_count = 0
         self._round_robin = 0
 
@@ -338,9 +340,12 @@ class SEIF(SlamFilter):
             # zero information of their own: the measurement below supplies it (SEIF.md, sensor)
             store.add_landmarks(self.sensor.inverse(store.mean[:3], ranges[is_new], bearings[is_new]))
             if store.capacity > len(self._last_observed):
-                grown = np.zeros(store.capacity, dtype=np.int64)
-                grown[: len(self._last_observed)] = self._last_observed
-                self._last_observed = grown
+                self._last_observed = np.concatenate(
+                    [self._last_observed, np.zeros(store.capacity - len(self._last_observed), dtype=np.int64)]
+                )
+                self._is_active = np.concatenate(
+                    [self._is_active, np.zeros(store.capacity - len(self._is_active), dtype=bool)]
+                )
         self._update_count += 1
         if len(indices):
             if self._compiled:
@@ -353,10 +358,12 @@ class SEIF(SlamFilter):
                 omega, xi = measurement_update(omega, xi, mu, ranges, bearings, self._measurement_info)
                 store.scatter(indices, omega, xi)
             self._last_observed[indices] = self._update_count
-            newly_active = indices[~np.isin(indices, self._active)]
-            self._active = np.concatenate([self._active, newly_active])
+            newly_active = indices[~self._is_active[indices]]
+            if len(newly_active):
+                self._active = np.concatenate([self._active, newly_active])
+                self._is_active[newly_active] = True
         self._recover_mean()
-        self._sparsify(indices)
+        self._sparsify()
 
     def _recover_mean(self) -> None:
         store = self._store
@@ -382,17 +389,22 @@ class SEIF(SlamFilter):
             return np.empty(0, dtype=np.int64)
         batch = (self._round_robin + np.arange(count)) % n
         self._round_robin = (self._round_robin + count) % n
-        return batch[~np.isin(batch, self._active)]
+        return batch[~self._is_active[batch]]
 
-    def _sparsify(self, observed: IndexArray) -> None:
+    def _sparsify(self) -> None:
         if self.max_active is None or len(self._active) <= self.max_active:
             return
         # the landmarks observed longest ago go first, never one observed in this update
-        candidates = self._active[~np.isin(self._active, observed)]
-        order = np.argsort(self._last_observed[candidates], kind="stable")
+        last_observed = self._last_observed[self._active]
+        candidates = np.flatnonzero(last_observed != self._update_count)  # positions in the active set
         remove_count = min(len(self._active) - self.max_active, len(candidates))
-        deactivated = candidates[order[:remove_count]]
-        kept = self._active[~np.isin(self._active, deactivated)]
+        if remove_count == 0:
+            return
+        order = np.argsort(last_observed[candidates], kind="stable")
+        remove = np.zeros(len(self._active), dtype=bool)
+        remove[candidates[order[:remove_count]]] = True
+        deactivated = self._active[remove]
+        kept = self._active[~remove]
         block = np.concatenate([kept, deactivated])
         store = self._store
         if self._compiled:
@@ -407,6 +419,7 @@ class SEIF(SlamFilter):
             omega, xi = sparsify(omega, xi, mu, len(kept))
             store.scatter(block, omega, xi)
         self._active = kept
+        self._is_active[deactivated] = False
 
     # -- read-only state -------------------------------------------------------------
     @property
@@ -471,4 +484,4 @@ class SEIF(SlamFilter):
         return scipy.linalg.cho_solve(scipy.linalg.cho_factor(omega), np.eye(len(omega)))
 
     def _state_nbytes(self) -> int:
-        return self._store.nbytes() + self._active.nbytes + self._last_observed.nbytes
+        return self._store.nbytes() + self._active.nbytes + self._last_observed.nbytes + self._is_active.nbytes

@@ -41,7 +41,8 @@ def as_finite_array(value: Any, name: str, shape: tuple[int | None, ...]) -> NDA
         wanted = "(" + ", ".join("n" if s is None else str(s) for s in shape) + ("," if len(shape) == 1 else "") + ")"
         raise ValueError(f"{name} must have shape {wanted}, got {array.shape}")
     if not np.all(np.isfinite(array)):
-        raise ValueError(f"{name} must be finite, got {value!r}")
+        bad = array[~np.isfinite(array)]
+        raise ValueError(f"{name} must be finite, got {bad.size} non-finite value(s) such as {bad.flat[0]}")
     return array
 
 

@@ -32,6 +32,7 @@ FloatArray = NDArray[np.float64]
 #: initial pose, so it is known almost exactly (a tiny variance keeps the
 #: information matrix finite).
 DEFAULT_INITIAL_POSE_COV: FloatArray = np.diag([1e-6, 1e-6, 1e-6])
+DEFAULT_INITIAL_POSE_COV.setflags(write=False)
 
 
 class UnknownLandmarkError(KeyError, ValueError):

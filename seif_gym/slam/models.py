@@ -36,9 +36,12 @@ FloatArray = NDArray[np.float64]
 
 def wrap_angle(angle):
     """Wrap angles to ``[-pi, pi)``; a float gives a float, anything else an array."""
+    # the modulo can round up to exactly 2 pi for inputs a hair below -pi: fold that back
     if isinstance(angle, float):
-        return (angle + math.pi) % (2.0 * math.pi) - math.pi
-    return (np.asarray(angle, dtype=np.float64) + np.pi) % (2.0 * np.pi) - np.pi
+        wrapped = (angle + math.pi) % (2.0 * math.pi) - math.pi
+        return wrapped - 2.0 * math.pi if wrapped >= math.pi else wrapped
+    wrapped = (np.asarray(angle, dtype=np.float64) + np.pi) % (2.0 * np.pi) - np.pi
+    return np.where(wrapped >= np.pi, wrapped - 2.0 * np.pi, wrapped)
 
 
 @runtime_checkable
@@ -200,7 +203,7 @@ class VelocityMotionModel:
         noise = (V * np.array([a1 * vv + a2 * ww, a3 * vv + a4 * ww])) @ V.T
         noise[2, 2] += (a5 * vv + a6 * ww) * dt * dt
         noise[np.diag_indices(3)] += self.noise_floor
-        return delta, jacobian, noise
+        return delta, jacobian, 0.5 * (noise + noise.T)
 
     # -- stochastic model ---------------------------------------------------
     def sample(self, pose, control, dt, rng: np.random.Generator) -> FloatArray:
@@ -265,6 +268,8 @@ class RangeBearingSensor:
 
     @staticmethod
     def _landmarks(landmarks, name: str = "landmarks") -> FloatArray:
+        if landmarks is None:
+            raise TypeError(f"{name} must be an array of shape (n, 2), got None")
         array = np.asarray(landmarks, dtype=np.float64) if not isinstance(landmarks, (str, bytes)) else None
         if array is not None and array.ndim == 1 and array.shape == (2,):
             array = array[None, :]

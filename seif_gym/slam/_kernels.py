@@ -322,3 +322,27 @@ def recover_mean(robot_info, robot_links, landmark_info, neighbour_index, neighb
     pose = np.linalg.solve(robot_info, rhs)
     for a in range(3):
         mean[a] = pose[a]
+
+
+@njit(cache=True)
+def blanket_covariances(robot_info, robot_links, landmark_info, neighbour_index, neighbour_info, neighbour_count,
+                        information_vector, mean, block_position, nodes, targets):  # fmt: skip
+    """Fast :func:`seif_gym.slam.seif.blanket_covariances`: invert the block over ``nodes``."""
+    omega, _, _ = gather(robot_info, robot_links, landmark_info, neighbour_index, neighbour_info,
+                         neighbour_count, information_vector, mean, block_position, nodes)  # fmt: skip
+    cov = np.linalg.inv(omega)
+    for p in range(nodes.shape[0]):
+        block_position[nodes[p]] = p
+    landmark_covs = np.empty((targets.shape[0], 2, 2))
+    for k in range(targets.shape[0]):
+        o = 3 + 2 * block_position[targets[k]]
+        for a in range(2):
+            for b in range(2):
+                landmark_covs[k, a, b] = 0.5 * (cov[o + a, o + b] + cov[o + b, o + a])
+    for p in range(nodes.shape[0]):
+        block_position[nodes[p]] = -1
+    pose_cov = np.empty((3, 3))
+    for a in range(3):
+        for b in range(3):
+            pose_cov[a, b] = 0.5 * (cov[a, b] + cov[b, a])
+    return pose_cov, landmark_covs

@@ -248,6 +248,36 @@ class SlamFilter(ABC):
         cov.setflags(write=False)
         return cov
 
+    def local_marginals(self, landmark_indices) -> tuple[FloatArray, FloatArray]:
+        """Pose covariance (3, 3) and covariances (k, 2, 2) of the landmarks at ``landmark_indices``.
+
+        ``landmark_indices`` are state orders (``landmark_index(id)``). Exact
+        marginals for the EKF and the EIF; the SEIF overrides this with its
+        constant-time Markov-blanket approximation. Meant for per-step
+        consumers such as the env's observation and data association.
+        """
+        indices = np.asarray(landmark_indices, dtype=np.int64).reshape(-1)
+        if np.any((indices < 0) | (indices >= self.num_landmarks)):
+            raise ValueError(f"landmark_indices must lie in [0, {self.num_landmarks}), got {indices}")
+        pose_cov = self._marginal_covariance(np.arange(3))
+        covs = np.empty((len(indices), 2, 2))
+        for k, index in enumerate(indices.tolist()):
+            covs[k] = self._marginal_covariance(np.array([3 + 2 * index, 4 + 2 * index]))
+        return pose_cov, covs
+
+    def landmark_std(self) -> FloatArray:
+        """One uncertainty per landmark, ``sqrt(trace)`` of its 2x2 covariance, shape (n,).
+
+        Exact marginals for the EKF and the EIF; the SEIF's constant-time
+        version uses each landmark's own information block (a lower bound).
+        """
+        variances = self._marginal_variances()[3:]
+        return np.sqrt(variances[0::2] + variances[1::2])
+
+    def _marginal_variances(self) -> FloatArray:
+        """Diagonal of the covariance, shape (3 + 2n,)."""
+        return np.diag(self._full_covariance()).copy()
+
     def covariance(self) -> FloatArray:
         """The full dense covariance (3 + 2n, 3 + 2n).
 

@@ -265,6 +265,14 @@ class EIF(SlamFilter):
         columns = scipy.linalg.cho_solve(self._factor(), unit_columns, check_finite=False)
         return _symmetrized(columns[state_indices])
 
+    def _marginal_variances(self) -> FloatArray:
+        # diag(Omega^-1) = squared column norms of L^-1 (Omega = L L^T): one triangular solve
+        factor, lower = self._factor()
+        inverse_factor = scipy.linalg.solve_triangular(factor, np.eye(self._dim), lower=lower, check_finite=False)
+        if not lower:  # cho_factor(..., lower=True) above: never taken, kept for safety
+            inverse_factor = inverse_factor.T
+        return np.einsum("ij,ij->j", inverse_factor, inverse_factor)
+
     def _full_covariance(self) -> FloatArray:
         return _symmetrized(scipy.linalg.cho_solve(self._factor(), np.eye(self._dim), check_finite=False))
 

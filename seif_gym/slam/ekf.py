@@ -211,6 +211,9 @@ class EKF(SlamFilter):
     def _marginal_covariance(self, state_indices: NDArray[np.int64]) -> FloatArray:
         return self._state_cov[np.ix_(state_indices, state_indices)].copy()
 
+    def _marginal_variances(self) -> FloatArray:
+        return np.diag(self._state_cov)[: self._dim].copy()
+
     def _full_covariance(self) -> FloatArray:
         return self._state_cov[: self._dim, : self._dim].copy()
 

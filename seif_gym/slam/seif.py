@@ -39,6 +39,7 @@ __all__ = [
     "sparsify",
     "recover_mean_amortized",
     "recover_mean_exact",
+    "blanket_covariances",
 ]
 
 FloatArray = NDArray[np.float64]
@@ -220,6 +221,23 @@ def recover_mean_exact(store: InformationStore) -> None:
     omega = store.to_sparse().tocsc()
     solver = scipy.sparse.linalg.splu(omega, permc_spec="MMD_AT_PLUS_A")
     store.mean[: store.state_dim] = solver.solve(store.information_vector_view())
+
+
+def blanket_covariances(store: InformationStore, nodes: IndexArray, targets: IndexArray) -> tuple[FloatArray, FloatArray]:
+    """Covariances of the robot and of ``targets`` from the block over the robot and ``nodes``.
+
+    ``nodes`` must contain every landmark of ``targets``. The block's inverse
+    is the covariance *conditioned on the landmarks outside the block*: the
+    constant-time approximation of marginals that Probabilistic Robotics
+    (section 12.7) uses for data association. It is tighter than the true
+    marginal, the more so the more of the map the block leaves out.
+    """
+    omega, _, _ = store.gather(nodes)
+    cov = np.linalg.inv(omega)
+    position = {int(i): p for p, i in enumerate(nodes)}
+    rows = [slice(3 + 2 * position[int(i)], 5 + 2 * position[int(i)]) for i in targets]
+    landmark_covs = np.array([cov[r, r] for r in rows]).reshape(-1, 2, 2)
+    return 0.5 * (cov[:3, :3] + cov[:3, :3].T), 0.5 * (landmark_covs + landmark_covs.transpose(0, 2, 1))
 
 
 def _rewrap_heading(store: InformationStore, active: IndexArray) -> None:
@@ -466,6 +484,33 @@ class SEIF(SlamFilter):
             else:
                 recover_mean_amortized(store, everything, self._active)
             _rewrap_heading(store, self._active)
+
+    def local_marginals(self, landmark_indices) -> tuple[FloatArray, FloatArray]:
+        """Pose and landmark covariances from the Markov blanket, in constant time.
+
+        Inverts the information block over the robot, its active landmarks
+        and the requested landmarks (:func:`blanket_covariances`): the
+        covariance conditioned on the rest of the map, which is tighter than
+        the exact marginal (``pose_covariance``, ``landmark_covariance``).
+        """
+        indices = np.asarray(landmark_indices, dtype=np.int64).reshape(-1)
+        if np.any((indices < 0) | (indices >= self.num_landmarks)):
+            raise ValueError(f"landmark_indices must lie in [0, {self.num_landmarks}), got {indices}")
+        nodes = np.concatenate([self._active, np.unique(indices[~self._is_active[indices]])])
+        store = self._store
+        if self._compiled:
+            return _kernels.blanket_covariances(
+                store.robot_info, store.robot_links, store.landmark_info,
+                store.neighbour_index, store.neighbour_info, store.neighbour_count,
+                store.information_vector, store.mean, store.block_position, nodes, indices,
+            )  # fmt: skip
+        return blanket_covariances(store, nodes, indices)
+
+    def landmark_std(self) -> FloatArray:
+        """``sqrt(trace(Omega_ii^-1))`` per landmark: the conditional uncertainty, in O(n) without a solve."""
+        info = self._store.landmark_info[: self.num_landmarks]
+        det = info[:, 0, 0] * info[:, 1, 1] - info[:, 0, 1] * info[:, 1, 0]
+        return np.sqrt((info[:, 0, 0] + info[:, 1, 1]) / det)
 
     # -- SlamFilter hooks ------------------------------------------------------------
     def _mean_vector(self) -> FloatArray:

@@ -12,7 +12,20 @@ from seif_gym.slam.ekf import EKF
 from seif_gym.slam.models import MotionModel, RangeBearingSensor, VelocityMotionModel, wrap_angle
 from seif_gym.slam.seif import SEIF
 
+#: Filters by name, for ``make_filter`` and the env's ``filter=`` argument.
+FILTERS: dict[str, type[SlamFilter]] = {"seif": SEIF, "eif": EIF, "ekf": EKF}
+
+
+def make_filter(name: str, motion, sensor, initial_pose, initial_pose_cov=None, **options) -> SlamFilter:
+    """Build the filter called ``name`` (a key of :data:`FILTERS`)."""
+    if not isinstance(name, str) or name not in FILTERS:
+        raise ValueError(f"filter must be one of {tuple(FILTERS)}, got {name!r}")
+    return FILTERS[name](motion, sensor, initial_pose, initial_pose_cov, **options)
+
+
 __all__ = [
+    "FILTERS",
+    "make_filter",
     "EIF",
     "EKF",
     "MotionModel",

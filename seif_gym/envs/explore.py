@@ -1,0 +1,408 @@
+"""SeifExplore: learn to explore with a SEIF in the loop."""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import asdict, dataclass
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+import scipy.sparse.linalg
+from gymnasium import spaces
+from numpy.typing import NDArray
+
+from seif_gym.observation import BeliefEncoder, ObservationConfig
+from seif_gym.slam import FILTERS, RangeBearingSensor, SlamFilter, VelocityMotionModel, make_filter
+from seif_gym.slam.models import wrap_angle
+from seif_gym.world import LAYOUTS, World, WorldConfig, make_landmarks
+
+__all__ = ["SeifExploreEnv", "RewardConfig", "RobotConfig", "SensorConfig", "FilterConfig"]
+
+FloatArray = NDArray[np.float64]
+
+REWARDS = ("map_error", "information_gain")
+
+
+@dataclass(frozen=True)
+class RobotConfig:
+    """Controls and motion noise of the robot (Thrun's velocity model)."""
+
+    dt: float = 0.25
+    max_speed: float = 1.0
+    max_turn_rate: float = 1.0
+    motion_noise: tuple[float, float, float, float, float, float] = (0.01, 0.001, 0.001, 0.01, 0.0005, 0.0005)
+
+    def __post_init__(self) -> None:
+        for name in ("dt", "max_speed", "max_turn_rate"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or value <= 0:
+                raise ValueError(f"{name} must be a positive number, got {value!r}")
+        noise = np.asarray(self.motion_noise, dtype=float)
+        if noise.shape != (6,) or not np.all(np.isfinite(noise)) or np.any(noise < 0):
+            raise ValueError(f"motion_noise must be 6 non-negative numbers, got {self.motion_noise!r}")
+
+
+@dataclass(frozen=True)
+class SensorConfig:
+    """The range-bearing sensor."""
+
+    sensor_range: float = 5.0
+    fov: float = math.pi
+    sigma_range: float = 0.1
+    sigma_bearing: float = math.radians(2.0)
+
+
+@dataclass(frozen=True)
+class FilterConfig:
+    """Which filter of :mod:`seif_gym.slam` runs inside, and its options."""
+
+    filter: str = "seif"
+    max_active: int | None = 8
+
+    def __post_init__(self) -> None:
+        if self.filter not in FILTERS:
+            raise ValueError(f"filter must be one of {tuple(FILTERS)}, got {self.filter!r}")
+
+
+@dataclass(frozen=True)
+class RewardConfig:
+    """The reward and the episode's end."""
+
+    reward: str = "map_error"
+    d_cap: float = 2.0
+    wall_penalty: float = 0.005
+    divergence_threshold: float = 5.0
+
+    def __post_init__(self) -> None:
+        if self.reward not in REWARDS:
+            raise ValueError(f"reward must be one of {REWARDS}, got {self.reward!r}")
+        for name in ("d_cap", "divergence_threshold"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or value <= 0:
+                raise ValueError(f"{name} must be a positive number, got {value!r}")
+        if not isinstance(self.wall_penalty, (int, float)) or not math.isfinite(self.wall_penalty) or self.wall_penalty < 0:
+            raise ValueError(f"wall_penalty must be a non-negative number, got {self.wall_penalty!r}")
+
+
+class SeifExploreEnv(gym.Env):
+    """
+    ## Description
+
+    A robot with Thrun's velocity motion model and a range-bearing landmark
+    sensor explores a square arena of point landmarks. A Sparse Extended
+    Information Filter (SEIF, `seif_gym.slam.SEIF`) runs in every step: it
+    is told the executed control and the noisy measurements (with known
+    landmark ids) and keeps the belief over the robot pose and the map. The
+    agent observes **only this belief** and is rewarded for making the
+    estimated map accurate, so it learns where to go to map the landmarks
+    well: exploration, and revisits that close loops.
+
+    ## Action Space
+
+    `Box(-1, 1, (2,), float32)`, scaled inside:
+
+    | Num | Action          | Control                          | Min            | Max           |
+    |-----|-----------------|----------------------------------|----------------|---------------|
+    | 0   | forward speed   | `v = a0 * max_speed` (m/s)       | `-max_speed`   | `max_speed`   |
+    | 1   | turn rate       | `w = a1 * max_turn_rate` (rad/s) | `-max_turn_rate` | `max_turn_rate` |
+
+    Finite actions outside `[-1, 1]` are clipped; NaN or infinite actions
+    raise `ValueError`.
+
+    ## Observation Space
+
+    A flat `Dict` (SB3's `MultiInputPolicy` takes it as is), all `float32`:
+
+    | Key              | Shape       | Range   | Content |
+    |------------------|-------------|---------|---------|
+    | `pose`           | (7,)        | [-1, 1] | estimated `x/h`, `y/h` (`h` = half the arena), `cos θ`, `sin θ`, and the pose's standard deviations `σx/s`, `σy/s`, `σθ/π` (`s` = `std_scale`, clipped at 1) |
+    | `landmarks`      | (K, 4)      | [-1, 1] | the `K` mapped landmarks nearest to the estimated pose, nearest first: position ahead and to the left of the robot (divided by the arena diagonal), and the major and minor semi-axes of their 95% ellipse (divided by `std_scale`, clipped at 1); zero rows pad |
+    | `landmarks_mask` | (K,)        | {0, 1}  | 1 for the rows of `landmarks` that hold a landmark |
+    | `belief_map`     | (3, H, H)   | [0, 1]  | egocentric raster of `2·map_extent` metres, heading up (row 0 ahead, column 0 left): channel 0 the area the sensor has swept (from the *estimated* poses), channel 1 the mapped landmarks weighted by certainty `1/(1 + std/s)`, channel 2 the outside of the arena |
+
+    Uncertainties come from the filter's `local_marginals`: exact for the EKF
+    and EIF; for the SEIF the constant-time Markov-blanket covariance (the
+    block of the robot, its active landmarks and the listed ones, conditioned
+    on the rest of the map), which is tighter than the exact marginal.
+
+    ## Rewards
+
+    With `E_t` the map error, the mean over **all** `n` true landmarks of
+    `min(‖m̂_i − m_i‖, d_cap)` (an unmapped landmark counts `d_cap`), the
+    reward is `r_t = E_{t−1} − E_t − wall_penalty·[wall contact]`. The
+    undiscounted return is therefore `E_0 − E_T` minus the penalties: the
+    gain in map accuracy over the episode. `m̂` is the filter's current
+    estimate, so a landmark whose estimate drifts costs reward again.
+
+    `reward="information_gain"` replaces `E_{t−1} − E_t` by the decrease of
+    the D-optimality criterion `log det Σ / n_dims` of the filter's
+    covariance over the full map (an unmapped landmark counted with the
+    prior variance `d_cap²` per axis), computed from the sparse information
+    matrix by a sparse LU factorisation (never a dense inverse). Agents can
+    exploit an overconfident filter under this reward, which is why the
+    default stays the ground-truth map error.
+
+    ## Starting State
+
+    A new landmark layout is drawn at every reset (from the seed). The robot
+    starts at a uniform position in the central half of the arena with a
+    uniform heading; the filter starts at the true pose with a tiny
+    covariance (the map frame is anchored at the start) and processes a
+    first measurement before the first observation.
+
+    ## Episode End
+
+    * Truncation: the time limit of the registration (`max_episode_steps`,
+      400 for `SeifExplore-v0`).
+    * Termination: the estimate diverged, i.e. the estimated position is
+      more than `divergence_threshold` metres from the true one;
+      `info["diverged"]` is then `True`.
+
+    At the wall the robot's translation is blocked: a step whose noise-free
+    motion would leave the arena is executed as a turn in place (`v = 0`,
+    the filter is told so), `info["wall_contact"]` is `True` and the step
+    costs `wall_penalty`.
+
+    ## Arguments
+
+    ```python
+    gym.make("SeifExplore-v0", layout="loop", num_landmarks=40, filter="ekf")
+    ```
+
+    | Argument | Default | Meaning |
+    |---|---|---|
+    | `arena_size` | 20.0 | side of the square arena, metres |
+    | `layout` | `"uniform"` | `"uniform"`, `"clustered"` or `"loop"` (`seif_gym.world.make_landmarks`) |
+    | `num_landmarks` | 30 | landmarks in the arena |
+    | `sensor_range` | 5.0 | metres |
+    | `fov` | π | full opening angle of the sensor, radians |
+    | `sigma_range`, `sigma_bearing` | 0.1, 2° | measurement noise |
+    | `motion_noise` | (0.01, 0.001, 0.001, 0.01, 0.0005, 0.0005) | Thrun's α1…α6 |
+    | `dt` | 0.25 | seconds per step |
+    | `max_speed`, `max_turn_rate` | 1.0, 1.0 | action scaling, m/s and rad/s |
+    | `filter` | `"seif"` | any of `seif_gym.slam.FILTERS` |
+    | `max_active` | 8 | SEIF's active-landmark bound `k` (ignored by the exact filters) |
+    | `reward` | `"map_error"` | or `"information_gain"` |
+    | `d_cap` | 2.0 | cap of a landmark's error in `E_t`, metres |
+    | `wall_penalty` | 0.005 | per step in contact with the wall |
+    | `divergence_threshold` | 5.0 | pose error that ends the episode, metres |
+    | `nearest_landmarks`, `map_size`, `map_extent`, `std_scale` | 8, 32, 8.0, 1.0 | observation shape (`ObservationConfig`) |
+    | `render_mode` | `None` | `"rgb_array"` or `"human"` |
+    """
+
+    metadata = {"render_modes": ["human", "rgb_array"], "render_fps": 10}
+
+    def __init__(
+        self,
+        *,
+        arena_size: float = 20.0,
+        layout: str = "uniform",
+        num_landmarks: int = 30,
+        sensor_range: float = 5.0,
+        fov: float = math.pi,
+        sigma_range: float = 0.1,
+        sigma_bearing: float = math.radians(2.0),
+        motion_noise: tuple[float, ...] = (0.01, 0.001, 0.001, 0.01, 0.0005, 0.0005),
+        dt: float = 0.25,
+        max_speed: float = 1.0,
+        max_turn_rate: float = 1.0,
+        filter: str = "seif",
+        max_active: int | None = 8,
+        reward: str = "map_error",
+        d_cap: float = 2.0,
+        wall_penalty: float = 0.005,
+        divergence_threshold: float = 5.0,
+        nearest_landmarks: int = 8,
+        map_size: int = 32,
+        map_extent: float = 8.0,
+        std_scale: float = 1.0,
+        render_mode: str | None = None,
+    ) -> None:
+        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
+            raise ValueError(f"render_mode must be one of {self.metadata['render_modes']} or None, got {render_mode!r}")
+        self.world_config = WorldConfig(arena_size=arena_size, layout=layout, num_landmarks=num_landmarks)
+        self.robot_config = RobotConfig(dt=dt, max_speed=max_speed, max_turn_rate=max_turn_rate, motion_noise=tuple(motion_noise))
+        self.sensor_config = SensorConfig(sensor_range=sensor_range, fov=fov, sigma_range=sigma_range, sigma_bearing=sigma_bearing)
+        self.filter_config = FilterConfig(filter=filter, max_active=max_active)
+        self.reward_config = RewardConfig(reward=reward, d_cap=d_cap, wall_penalty=wall_penalty, divergence_threshold=divergence_threshold)
+        self.observation_config = ObservationConfig(
+            nearest_landmarks=nearest_landmarks, map_size=map_size, map_extent=map_extent, std_scale=std_scale
+        )
+        self.motion = VelocityMotionModel(alphas=self.robot_config.motion_noise)
+        self.sensor = RangeBearingSensor(sigma_range=sigma_range, sigma_bearing=sigma_bearing, max_range=sensor_range, fov=fov)
+        # validate the filter options once, at construction
+        make_filter(self.filter_config.filter, self.motion, self.sensor, np.zeros(3), **self._filter_options())
+        self.encoder = BeliefEncoder(arena_size, self.sensor, self.observation_config)
+        self.observation_space = self.encoder.observation_space
+        self.action_space = spaces.Box(-1.0, 1.0, (2,), np.float32)
+        self._action_scale = np.array([max_speed, max_turn_rate])
+        self.render_mode = render_mode
+        self._renderer = None
+        self.world: World | None = None
+        self.filter: SlamFilter | None = None
+        self.trajectory: list[FloatArray] = []
+        self.estimated_trajectory: list[FloatArray] = []
+
+    # -- configuration ---------------------------------------------------------
+    def _filter_options(self) -> dict[str, Any]:
+        return {"max_active": self.filter_config.max_active} if self.filter_config.filter in ("seif", "eseif") else {}
+
+    @property
+    def config(self) -> dict[str, Any]:
+        """All constructor arguments (``gym.make`` keyword arguments) but ``render_mode``."""
+        merged: dict[str, Any] = {}
+        for part in (self.world_config, self.robot_config, self.sensor_config, self.filter_config, self.reward_config):
+            merged.update(asdict(part))
+        merged.update(
+            {key: value for key, value in asdict(self.observation_config).items() if key != "coverage_resolution"}
+        )
+        return merged
+
+    # -- gymnasium API -------------------------------------------------------------
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
+        super().reset(seed=seed)
+        # one generator per source of randomness, all drawn from the env's seeded generator
+        layout_rng, start_rng, motion_rng, sensor_rng = (
+            np.random.Generator(np.random.PCG64(s)) for s in self.np_random.integers(0, 2**63, size=4)
+        )
+        self._motion_rng, self._sensor_rng = motion_rng, sensor_rng
+        config = self.world_config
+        landmarks = make_landmarks(config, layout_rng)
+        h = 0.5 * config.half_size
+        start = np.array([*start_rng.uniform(-h, h, 2), start_rng.uniform(-math.pi, math.pi)])
+        self.world = World(config, self.motion, self.sensor, landmarks, start)
+        self.filter = make_filter(self.filter_config.filter, self.motion, self.sensor, start, **self._filter_options())
+        self.encoder.reset()
+        self.trajectory = [start.copy()]
+        self.estimated_trajectory = [start.copy()]
+        self._elapsed_steps = 0
+        ranges, bearings, ids = self.world.measure(self._sensor_rng)
+        started = time.perf_counter()
+        self.filter.update(ranges, bearings, ids)
+        step_time = time.perf_counter() - started
+        self.encoder.sweep(self.filter.pose)
+        self._map_error = self.map_error()
+        self._information = self._log_det_criterion() if self.reward_config.reward == "information_gain" else 0.0
+        observation = self.encoder.encode(self.filter)
+        info = self._info(np.zeros(2), np.zeros(2), (ranges, bearings, ids), step_time, wall=False, diverged=False)
+        if self.render_mode == "human":
+            self.render()
+        return observation, info
+
+    def step(self, action):
+        if self.world is None or self.filter is None:
+            raise RuntimeError("call reset() before step()")
+        action = np.asarray(action, dtype=np.float64)
+        if action.shape != (2,):
+            raise ValueError(f"action must have shape (2,), got {action.shape}")
+        if not np.all(np.isfinite(action)):
+            raise ValueError(f"action must be finite, got {action}")
+        control = np.clip(action, -1.0, 1.0) * self._action_scale
+        dt = self.robot_config.dt
+        executed, wall = self.world.step(control, dt, self._motion_rng)
+        measurement = self.world.measure(self._sensor_rng)
+        started = time.perf_counter()
+        self.filter.predict(executed, dt)
+        self.filter.update(*measurement)
+        step_time = time.perf_counter() - started
+        estimate = self.filter.pose
+        self.encoder.sweep(estimate)
+        self._elapsed_steps += 1
+        self.trajectory.append(self.world.pose.copy())
+        self.estimated_trajectory.append(estimate.copy())
+
+        map_error = self.map_error()
+        if self.reward_config.reward == "map_error":
+            gain = self._map_error - map_error
+        else:
+            information = self._log_det_criterion()
+            gain = information - self._information
+            self._information = information
+        self._map_error = map_error
+        reward = gain - (self.reward_config.wall_penalty if wall else 0.0)
+        pose_error = float(np.hypot(*(self.world.pose[:2] - estimate[:2])))
+        diverged = pose_error > self.reward_config.divergence_threshold
+        observation = self.encoder.encode(self.filter)
+        info = self._info(control, executed, measurement, step_time, wall=wall, diverged=diverged)
+        if self.render_mode == "human":
+            self.render()
+        return observation, float(reward), diverged, False, info
+
+    # -- reward and info -------------------------------------------------------------
+    def map_error(self) -> float:
+        """``E_t``: mean over all true landmarks of ``min(error, d_cap)``, unmapped counted as ``d_cap``."""
+        d_cap = self.reward_config.d_cap
+        ids = self.filter.landmark_ids
+        errors = np.linalg.norm(self.filter.landmarks - self.world.landmarks[ids], axis=1)
+        total = np.minimum(errors, d_cap).sum() + d_cap * (self.world_config.num_landmarks - len(ids))
+        return float(total / self.world_config.num_landmarks)
+
+    def _log_det_criterion(self) -> float:
+        """``-log det Sigma / dims`` over the whole map (unmapped landmarks at the prior ``d_cap^2``).
+
+        Computed as ``log det Omega`` from a sparse LU factorisation of the
+        information matrix (EKF: ``-log det Sigma``), so the reward
+        ``criterion_t - criterion_{t-1}`` is the decrease of ``log det Sigma``.
+        """
+        filt = self.filter
+        unmapped = self.world_config.num_landmarks - filt.num_landmarks
+        prior = 2 * unmapped * -math.log(self.reward_config.d_cap**2)
+        information = getattr(filt, "information_matrix", None)
+        if information is None:
+            sign, log_det_cov = np.linalg.slogdet(filt.covariance())
+            log_det_info = -log_det_cov
+        else:
+            lu = scipy.sparse.linalg.splu(information.tocsc(), permc_spec="MMD_AT_PLUS_A")
+            log_det_info = float(np.sum(np.log(np.abs(lu.U.diagonal()))))
+        dims = 3 + 2 * self.world_config.num_landmarks
+        return float((log_det_info + prior) / dims)
+
+    def _info(self, control, executed, measurement, step_time, *, wall: bool, diverged: bool) -> dict[str, Any]:
+        filt, world = self.filter, self.world
+        estimate = filt.pose
+        error = world.pose - estimate
+        error[2] = wrap_angle(float(error[2]))
+        pose_cov, _ = filt.local_marginals(np.empty(0, dtype=np.int64))
+        try:
+            nees = float(error @ np.linalg.solve(pose_cov, error))
+        except np.linalg.LinAlgError:
+            nees = float("inf")
+        ranges, bearings, ids = measurement
+        return {
+            "true_pose": world.pose.copy(),
+            "pose_estimate": estimate.copy(),
+            "pose_error": float(math.hypot(error[0], error[1])),
+            "map_error": self._map_error,
+            "pose_nees": nees,
+            "landmarks_mapped": int(filt.num_landmarks),
+            "landmarks_total": int(self.world_config.num_landmarks),
+            # the exact filters link the robot to every mapped landmark
+            "active_landmarks": np.asarray(getattr(filt, "active_landmarks", filt.landmark_ids)).copy(),
+            "control": np.asarray(control, dtype=np.float64).copy(),
+            "executed_control": np.asarray(executed, dtype=np.float64).copy(),
+            "measurements": {"ranges": ranges, "bearings": bearings, "ids": ids},
+            "step_time": step_time,
+            "wall_contact": wall,
+            "diverged": diverged,
+        }
+
+    # -- rendering ------------------------------------------------------------------
+    def render(self):
+        if self.render_mode is None:
+            gym.logger.warn("render() called without a render_mode; pass render_mode='rgb_array' or 'human' to make()")
+            return None
+        if self.world is None:
+            raise RuntimeError("call reset() before render()")
+        from seif_gym.render import Renderer
+
+        if self._renderer is None:
+            self._renderer = Renderer(self.world_config.arena_size, self.sensor, human=self.render_mode == "human")
+        frame = self._renderer.draw(self)
+        return frame if self.render_mode == "rgb_array" else None
+
+    def close(self) -> None:
+        if self._renderer is not None:
+            self._renderer.close()
+            self._renderer = None

@@ -124,6 +124,56 @@ def _belief_map(coverage, resolution, half_arena, x, y, theta, size, extent, lan
     return out
 
 
+@njit(cache=True)
+def _nearest(x, y, landmarks, k):
+    """Indices of the ``k`` landmarks nearest to ``(x, y)``, nearest first (ties: lower index)."""
+    n = landmarks.shape[0]
+    count = min(k, n)
+    best = np.empty(count, dtype=np.int64)
+    best_d2 = np.empty(count)
+    filled = 0
+    for i in range(n):
+        dx = landmarks[i, 0] - x
+        dy = landmarks[i, 1] - y
+        d2 = dx * dx + dy * dy
+        if filled < count:
+            pos = filled
+            filled += 1
+        elif d2 < best_d2[count - 1]:
+            pos = count - 1
+        else:
+            continue
+        while pos > 0 and best_d2[pos - 1] > d2:
+            best_d2[pos] = best_d2[pos - 1]
+            best[pos] = best[pos - 1]
+            pos -= 1
+        best_d2[pos] = d2
+        best[pos] = i
+    return best
+
+
+@njit(cache=True)
+def _landmark_features(x, y, theta, landmarks, nearest, covs, k, diagonal, std_scale, chi2):
+    """Rows ``(forward, left, major, minor)`` of ``obs["landmarks"]`` and the mask."""
+    features = np.zeros((k, 4), dtype=np.float32)
+    mask = np.zeros(k, dtype=np.float32)
+    c, s = np.cos(theta), np.sin(theta)
+    for row in range(nearest.shape[0]):
+        i = nearest[row]
+        dx = landmarks[i, 0] - x
+        dy = landmarks[i, 1] - y
+        features[row, 0] = min(max((c * dx + s * dy) / diagonal, -1.0), 1.0)
+        features[row, 1] = min(max((-s * dx + c * dy) / diagonal, -1.0), 1.0)
+        # eigenvalues of the symmetric 2x2 covariance, closed form
+        a, b, d = covs[row, 0, 0], covs[row, 0, 1], covs[row, 1, 1]
+        mid = 0.5 * (a + d)
+        radius = np.sqrt(max(0.25 * (a - d) * (a - d) + b * b, 0.0))
+        features[row, 2] = min(np.sqrt(chi2 * max(mid + radius, 0.0)) / std_scale, 1.0)
+        features[row, 3] = min(np.sqrt(chi2 * max(mid - radius, 0.0)) / std_scale, 1.0)
+        mask[row] = 1.0
+    return features, mask
+
+
 class BeliefEncoder:
     """Turns a filter's belief into the observation dictionary.
 
@@ -164,59 +214,38 @@ class BeliefEncoder:
 
     def nearest(self, pose: FloatArray, landmarks: FloatArray) -> NDArray[np.int64]:
         """State orders of the ``K`` mapped landmarks nearest to ``pose``, nearest first."""
-        if len(landmarks) == 0:
-            return np.empty(0, dtype=np.int64)
-        d2 = np.einsum("ij,ij->i", landmarks - pose[:2], landmarks - pose[:2])
-        k = self.config.nearest_landmarks
-        if len(d2) > k:
-            candidates = np.argpartition(d2, k - 1)[:k]
-            return candidates[np.argsort(d2[candidates], kind="stable")]
-        return np.argsort(d2, kind="stable")
+        return _nearest(float(pose[0]), float(pose[1]), np.ascontiguousarray(landmarks), self.config.nearest_landmarks)
 
     def encode(self, filt: SlamFilter) -> dict[str, np.ndarray]:
-        """The observation of ``filt``'s current belief."""
+        """The observation of ``filt``'s current belief.
+
+        Also keeps the pose covariance it used in :attr:`pose_covariance`
+        (the env's ``info["pose_nees"]`` reuses it).
+        """
         config = self.config
         pose = filt.pose
+        x, y, theta = float(pose[0]), float(pose[1]), float(pose[2])
         landmarks = filt.landmarks
         nearest = self.nearest(pose, landmarks)
         pose_cov, landmark_covs = filt.local_marginals(nearest)
+        self.pose_covariance = pose_cov
         scale = config.std_scale
-        c, s = math.cos(pose[2]), math.sin(pose[2])
-        pose_obs = np.array(
-            [
-                pose[0] / self.half_arena,
-                pose[1] / self.half_arena,
-                c,
-                s,
-                math.sqrt(max(pose_cov[0, 0], 0.0)) / scale,
-                math.sqrt(max(pose_cov[1, 1], 0.0)) / scale,
-                math.sqrt(max(pose_cov[2, 2], 0.0)) / math.pi,
-            ],
-            dtype=np.float32,
-        )
-        k = config.nearest_landmarks
-        landmark_obs = np.zeros((k, len(LANDMARK_FEATURES)), dtype=np.float32)
-        mask = np.zeros(k, dtype=np.float32)
-        count = len(nearest)
-        if count:
-            d = landmarks[nearest] - pose[:2]
-            diagonal = self.arena_size * math.sqrt(2.0)
-            landmark_obs[:count, 0] = (c * d[:, 0] + s * d[:, 1]) / diagonal
-            landmark_obs[:count, 1] = (-s * d[:, 0] + c * d[:, 1]) / diagonal
-            eigenvalues = np.linalg.eigvalsh(landmark_covs)  # ascending
-            axes = np.sqrt(CHI2_2DOF_95 * np.maximum(eigenvalues, 0.0)) / scale
-            landmark_obs[:count, 2] = axes[:, 1]
-            landmark_obs[:count, 3] = axes[:, 0]
-            mask[:count] = 1.0
-        confidence = 1.0 / (1.0 + filt.landmark_std() / scale) if len(landmarks) else np.empty(0)
+        pose_obs = np.empty(len(POSE_FEATURES), dtype=np.float32)
+        pose_obs[0] = x / self.half_arena
+        pose_obs[1] = y / self.half_arena
+        pose_obs[2] = math.cos(theta)
+        pose_obs[3] = math.sin(theta)
+        pose_obs[4] = math.sqrt(max(pose_cov[0, 0], 0.0)) / scale
+        pose_obs[5] = math.sqrt(max(pose_cov[1, 1], 0.0)) / scale
+        pose_obs[6] = math.sqrt(max(pose_cov[2, 2], 0.0)) / math.pi
+        np.clip(pose_obs, -1.0, 1.0, out=pose_obs)
+        landmark_obs, mask = _landmark_features(
+            x, y, theta, landmarks, nearest, landmark_covs, config.nearest_landmarks,
+            self.arena_size * math.sqrt(2.0), scale, CHI2_2DOF_95,
+        )  # fmt: skip
+        confidence = 1.0 / (1.0 + filt.landmark_std() / scale)
         belief_map = _belief_map(
             self.coverage, config.coverage_resolution, self.half_arena,
-            float(pose[0]), float(pose[1]), float(pose[2]), config.map_size, config.map_extent,
-            landmarks, confidence,
+            x, y, theta, config.map_size, config.map_extent, landmarks, confidence,
         )  # fmt: skip
-        return {
-            "pose": np.clip(pose_obs, -1.0, 1.0),
-            "landmarks": np.clip(landmark_obs, -1.0, 1.0),
-            "landmarks_mask": mask,
-            "belief_map": belief_map,
-        }
+        return {"pose": pose_obs, "landmarks": landmark_obs, "landmarks_mask": mask, "belief_map": belief_map}

@@ -115,15 +115,17 @@ class World:
 
     def inside(self, position: FloatArray) -> bool:
         h = self.config.half_size
-        return bool(-h <= position[0] <= h and -h <= position[1] <= h)
+        x, y = float(position[0]), float(position[1])
+        return -h <= x <= h and -h <= y <= h
 
     def step(self, control: FloatArray, dt: float, rng: np.random.Generator) -> tuple[FloatArray, bool]:
         """Move the robot; returns the executed control and whether it hit the wall."""
+        # inputs come validated from the env: the models' unchecked paths are used
         executed = np.asarray(control, dtype=np.float64)
-        hit_wall = not self.inside(self.motion.predict(self.pose, executed, dt))
+        hit_wall = not self.inside(self.motion.predict_trusted(self.pose, executed, dt))
         if hit_wall:
             executed = np.array([0.0, executed[1]])
-        pose = self.motion.sample(self.pose, executed, dt, rng)
+        pose = self.motion.sample_trusted(self.pose, executed, dt, rng)
         h = self.config.half_size
         pose[0] = min(max(pose[0], -h), h)
         pose[1] = min(max(pose[1], -h), h)
@@ -133,4 +135,4 @@ class World:
 
     def measure(self, rng: np.random.Generator) -> tuple[FloatArray, FloatArray, NDArray[np.int64]]:
         """Noisy ``(ranges, bearings, ids)`` of the visible landmarks."""
-        return self.sensor.sample(self.pose, self.landmarks, rng)
+        return self.sensor.sample_trusted(self.pose, self.landmarks, rng)

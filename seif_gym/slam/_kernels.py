@@ -346,3 +346,16 @@ def blanket_covariances(robot_info, robot_links, landmark_info, neighbour_index,
         for b in range(3):
             pose_cov[a, b] = 0.5 * (cov[a, b] + cov[b, a])
     return pose_cov, landmark_covs
+
+
+@njit(cache=True)
+def conditional_std(landmark_info, count):
+    """``sqrt(trace(Omega_ii^-1))`` for the first ``count`` landmarks."""
+    out = np.empty(count)
+    for i in range(count):
+        a = landmark_info[i, 0, 0]
+        b = landmark_info[i, 0, 1]
+        c = landmark_info[i, 1, 0]
+        d = landmark_info[i, 1, 1]
+        out[i] = np.sqrt((a + d) / (a * d - b * c))
+    return out

@@ -7,6 +7,7 @@ Every public entry point of :mod:`seif_gym.slam` validates its arguments here
 
 from __future__ import annotations
 
+import math
 import numbers
 from typing import Any
 
@@ -29,6 +30,12 @@ def _kind(value: Any) -> str:
 
 def as_finite_array(value: Any, name: str, shape: tuple[int | None, ...]) -> NDArray[np.float64]:
     """Return ``value`` as a finite float64 array of ``shape`` (``None`` = any length)."""
+    # fast path for the common case, a float64 array of the right shape: a sum is
+    # finite only if every entry is (an overflowing sum falls through to the full check)
+    if type(value) is np.ndarray and value.dtype == np.float64 and value.ndim == len(shape):
+        if all(expected is None or actual == expected for actual, expected in zip(value.shape, shape)):
+            if math.isfinite(value.sum()):
+                return value
     if isinstance(value, (str, bytes)) or value is None:
         raise TypeError(f"{name} must be an array of numbers, got {_kind(value)}")
     try:

@@ -90,6 +90,8 @@ class SlamFilter(ABC):
         cov = DEFAULT_INITIAL_POSE_COV if initial_pose_cov is None else as_covariance(initial_pose_cov, "initial_pose_cov", 3)
         self.motion = motion
         self.sensor = sensor
+        # the inputs are validated here once; the models' unchecked paths skip a second check
+        self._linearize = getattr(motion, "linearize_trusted", motion.linearize)
         self._measurement_cov: FloatArray = np.array(noise, dtype=np.float64)
         self._measurement_info: FloatArray = np.linalg.inv(self._measurement_cov)
         self._id_to_index: dict[int, int] = {}
@@ -138,6 +140,14 @@ class SlamFilter(ABC):
             landmark, initialised from its measurement.
         """
         ranges, bearings, ids = self.validate_measurements(ranges, bearings, ids)
+        self.update_trusted(ranges, bearings, ids)
+
+    def predict_trusted(self, control, dt: float) -> None:
+        """:meth:`predict` without input checks, for simulators whose controls are valid by construction."""
+        self._predict(control, float(dt))
+
+    def update_trusted(self, ranges, bearings, ids) -> None:
+        """:meth:`update` without input checks (float64 ranges > 0, bearings, distinct int64 ids)."""
         if len(ids) == 0:
             self._update(ranges, bearings, np.empty(0, np.int64), np.empty(0, bool))
             return
@@ -170,7 +180,7 @@ class SlamFilter(ABC):
         ids = as_id_array(ids, "ids", len(ranges))
         if np.any(ranges <= 0.0):
             raise ValueError(f"ranges must be positive, got {ranges[ranges <= 0.0]}")
-        if len(np.unique(ids)) != len(ids):
+        if len(ids) > 1 and len(set(ids.tolist())) != len(ids):
             raise ValueError("ids must be distinct within one update")
         return ranges, bearings, ids
 
@@ -227,12 +237,16 @@ class SlamFilter(ABC):
     @property
     def pose(self) -> FloatArray:
         """Estimated robot pose ``(x, y, theta)``, shape (3,)."""
-        return self.mean[:3]
+        pose = self._mean_vector()[:3].copy()
+        pose.setflags(write=False)
+        return pose
 
     @property
     def landmarks(self) -> FloatArray:
         """Estimated landmark positions in the order of :attr:`landmark_ids`, shape (n, 2)."""
-        return self.mean[3:].reshape(-1, 2)
+        landmarks = self._mean_vector()[3:].reshape(-1, 2).copy()
+        landmarks.setflags(write=False)
+        return landmarks
 
     @property
     def pose_covariance(self) -> FloatArray:

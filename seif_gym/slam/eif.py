@@ -151,7 +151,7 @@ class EIF(SlamFilter):
         dim = self._dim
         information = self._information[:dim, :dim]
         mean = self._state_mean[:dim]
-        delta, jacobian, motion_noise = self.motion.linearize(mean[:3].copy(), control, dt)
+        delta, jacobian, motion_noise = self._linearize(mean[:3].copy(), control, dt)
         noise_information = _spd_inverse(motion_noise)
         noise_info_jacobian = noise_information @ jacobian  # R^-1 G
         old_pose_information = _symmetrized(information[:3, :3] + jacobian.T @ noise_info_jacobian)  # P

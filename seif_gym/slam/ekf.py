@@ -118,7 +118,7 @@ class EKF(SlamFilter):
         """EKF motion update (class Notes); O(n)."""
         dim = self._dim
         mean, cov = self._state_mean, self._state_cov
-        delta, jacobian, motion_noise = self.motion.linearize(mean[:3].copy(), control, dt)
+        delta, jacobian, motion_noise = self._linearize(mean[:3].copy(), control, dt)
         robot_block = _symmetrized(jacobian @ cov[:3, :3] @ jacobian.T + motion_noise)
         robot_map_block = jacobian @ cov[:3, 3:dim]
         mean[:3] += delta

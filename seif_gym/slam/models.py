@@ -52,6 +52,11 @@ class MotionModel(Protocol):
     increment ``delta`` (3,) so that the predicted pose is ``pose + delta``
     (angle wrapped afterwards), the Jacobian ``G = d g / d pose`` (3, 3) and the
     state-space motion noise ``R`` (3, 3), symmetric positive definite.
+
+    A model may also provide ``linearize_trusted`` with the same signature
+    and result but no input checks; the filters call it when present, since
+    they have validated ``control`` and ``dt`` already (the checks cost more
+    than the model itself).
     """
 
     def linearize(self, pose: FloatArray, control: FloatArray, dt: float) -> tuple[FloatArray, FloatArray, FloatArray]:
@@ -144,8 +149,7 @@ class VelocityMotionModel:
     def predict(self, pose, control, dt) -> FloatArray:
         """Noise-free next pose ``g(u, x)`` with the heading wrapped."""
         pose, control, dt = self._check(pose, control, dt)
-        dx, dy, dth = self._displacement(pose[2], control[0], control[1], dt)
-        return np.array([pose[0] + dx, pose[1] + dy, wrap_angle(float(pose[2] + dth))])
+        return self.predict_trusted(pose, control, dt)
 
     def jacobian_state(self, pose, control, dt) -> FloatArray:
         """``G = I + Delta``, the Jacobian of ``g`` with respect to the pose (3, 3)."""
@@ -193,17 +197,36 @@ class VelocityMotionModel:
         over the step.
         """
         pose, control, dt = self._check(pose, control, dt)
-        theta, v, w = float(pose[2]), float(control[0]), float(control[1])
-        dx, dy, dth = self._displacement(theta, v, w, dt)
-        delta = np.array([dx, dy, dth])
+        return self.linearize_trusted(pose, control, dt)
+
+    def linearize_trusted(self, pose, control, dt) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """:meth:`linearize` without input checks, for callers that validated them."""
+        theta, v, w, dt = float(pose[2]), float(control[0]), float(control[1]), float(dt)
+        half = 0.5 * w * dt
+        sinc, dsinc = _sinc_and_derivative(half)
+        mid = theta + half
+        c, s = math.cos(mid), math.sin(mid)
+        dx, dy = v * dt * c * sinc, v * dt * s * sinc
+        delta = np.array([dx, dy, w * dt])
         jacobian = np.array([[1.0, 0.0, -dy], [0.0, 1.0, dx], [0.0, 0.0, 1.0]])
+        # V = d g / d(v, w) (Thrun eq. 7.11), and R = V M V^T + gamma term + floor, written out
+        v0, v1 = dt * c * sinc, v * dt * 0.5 * dt * (-s * sinc + c * dsinc)
+        u0, u1 = dt * s * sinc, v * dt * 0.5 * dt * (c * sinc + s * dsinc)
         a1, a2, a3, a4, a5, a6 = self.alphas
         vv, ww = v * v, w * w
-        V = self._jacobian_control(theta, v, w, dt)
-        noise = (V * np.array([a1 * vv + a2 * ww, a3 * vv + a4 * ww])) @ V.T
-        noise[2, 2] += (a5 * vv + a6 * ww) * dt * dt
-        noise[np.diag_indices(3)] += self.noise_floor
-        return delta, jacobian, 0.5 * (noise + noise.T)
+        m_v, m_w = a1 * vv + a2 * ww, a3 * vv + a4 * ww
+        floor = self.noise_floor
+        r01 = v0 * m_v * u0 + v1 * m_w * u1
+        r02 = v1 * m_w * dt
+        r12 = u1 * m_w * dt
+        noise = np.array(
+            [
+                [v0 * m_v * v0 + v1 * m_w * v1 + floor, r01, r02],
+                [r01, u0 * m_v * u0 + u1 * m_w * u1 + floor, r12],
+                [r02, r12, dt * m_w * dt + (a5 * vv + a6 * ww) * dt * dt + floor],
+            ]
+        )
+        return delta, jacobian, noise
 
     # -- stochastic model ---------------------------------------------------
     def sample(self, pose, control, dt, rng: np.random.Generator) -> FloatArray:
@@ -211,6 +234,10 @@ class VelocityMotionModel:
         pose, control, dt = self._check(pose, control, dt)
         if not isinstance(rng, np.random.Generator):
             raise TypeError(f"rng must be a numpy.random.Generator, got {type(rng).__name__}")
+        return self.sample_trusted(pose, control, dt, rng)
+
+    def sample_trusted(self, pose, control, dt, rng: np.random.Generator) -> FloatArray:
+        """:meth:`sample` without input checks, for the simulator's inner loop."""
         v, w = float(control[0]), float(control[1])
         a1, a2, a3, a4, a5, a6 = self.alphas
         vv, ww = v * v, w * w
@@ -220,6 +247,11 @@ class VelocityMotionModel:
         gamma = math.sqrt(a5 * vv + a6 * ww) * noise[2]
         dx, dy, dth = self._displacement(float(pose[2]), v_hat, w_hat, dt)
         return np.array([pose[0] + dx, pose[1] + dy, wrap_angle(float(pose[2] + dth + gamma * dt))])
+
+    def predict_trusted(self, pose, control, dt) -> FloatArray:
+        """:meth:`predict` without input checks."""
+        dx, dy, dth = self._displacement(float(pose[2]), float(control[0]), float(control[1]), float(dt))
+        return np.array([pose[0] + dx, pose[1] + dy, wrap_angle(float(pose[2] + dth))])
 
 
 class RangeBearingSensor:
@@ -277,10 +309,17 @@ class RangeBearingSensor:
 
     def predict(self, pose, landmarks) -> FloatArray:
         """Expected ``(range, bearing)`` of each landmark, shape (m, 2)."""
-        pose = as_finite_vector(pose, "pose", 3)
-        landmarks = self._landmarks(landmarks)
-        d = landmarks - pose[:2]
-        return np.column_stack([np.hypot(d[:, 0], d[:, 1]), wrap_angle(np.arctan2(d[:, 1], d[:, 0]) - pose[2])])
+        return self.predict_trusted(as_finite_vector(pose, "pose", 3), self._landmarks(landmarks))
+
+    @staticmethod
+    def predict_trusted(pose: FloatArray, landmarks: FloatArray) -> FloatArray:
+        """:meth:`predict` without input checks (``landmarks`` float64 (m, 2))."""
+        dx = landmarks[:, 0] - pose[0]
+        dy = landmarks[:, 1] - pose[1]
+        z = np.empty((len(landmarks), 2))
+        z[:, 0] = np.sqrt(dx * dx + dy * dy)
+        z[:, 1] = (np.arctan2(dy, dx) - pose[2] + np.pi) % (2.0 * np.pi) - np.pi
+        return z
 
     def jacobian(self, pose, landmarks) -> FloatArray:
         """``H`` of ``SEIF.md`` for each landmark, shape (m, 2, 5)."""
@@ -302,8 +341,16 @@ class RangeBearingSensor:
         pose = as_finite_vector(pose, "pose", 3)
         ranges = as_finite_array(np.atleast_1d(ranges), "ranges", (None,))
         bearings = as_finite_array(np.atleast_1d(bearings), "bearings", (len(ranges),))
+        return self.inverse_trusted(pose, ranges, bearings)
+
+    @staticmethod
+    def inverse_trusted(pose: FloatArray, ranges: FloatArray, bearings: FloatArray) -> FloatArray:
+        """:meth:`inverse` without input checks."""
         angle = bearings + pose[2]
-        return np.column_stack([pose[0] + ranges * np.cos(angle), pose[1] + ranges * np.sin(angle)])
+        positions = np.empty((len(ranges), 2))
+        positions[:, 0] = pose[0] + ranges * np.cos(angle)
+        positions[:, 1] = pose[1] + ranges * np.sin(angle)
+        return positions
 
     def inverse_jacobians(self, pose, ranges, bearings) -> tuple[FloatArray, FloatArray]:
         """Jacobians of :meth:`inverse` with respect to the pose (m, 2, 3) and to ``(r, phi)`` (m, 2, 2)."""
@@ -322,9 +369,13 @@ class RangeBearingSensor:
 
     def visible(self, pose, landmarks) -> NDArray[np.bool_]:
         """Mask of the landmarks inside the range and field of view (no noise)."""
-        z = self.predict(pose, landmarks)
-        in_fov = np.abs(z[:, 1]) <= 0.5 * self.fov if self.fov < 2.0 * math.pi else np.ones(len(z), bool)
-        return (z[:, 0] <= self.max_range) & (z[:, 0] > 0.0) & in_fov
+        return self._visible(self.predict(pose, landmarks))
+
+    def _visible(self, z: FloatArray) -> NDArray[np.bool_]:
+        mask = (z[:, 0] <= self.max_range) & (z[:, 0] > 0.0)
+        if self.fov < 2.0 * math.pi:
+            mask &= np.abs(z[:, 1]) <= 0.5 * self.fov
+        return mask
 
     def sample(self, pose, landmarks, rng: np.random.Generator, ids=None) -> tuple[FloatArray, FloatArray, NDArray[np.int64]]:
         """Noisy ``(ranges, bearings, ids)`` of the visible landmarks.
@@ -334,16 +385,20 @@ class RangeBearingSensor:
         """
         if not isinstance(rng, np.random.Generator):
             raise TypeError(f"rng must be a numpy.random.Generator, got {type(rng).__name__}")
+        pose = as_finite_vector(pose, "pose", 3)
         landmarks = self._landmarks(landmarks)
-        if ids is None:
-            all_ids = np.arange(len(landmarks), dtype=np.int64)
-        else:
-            all_ids = np.asarray(ids)
-            if all_ids.shape != (len(landmarks),) or not np.issubdtype(all_ids.dtype, np.integer):
+        if ids is not None:
+            ids = np.asarray(ids)
+            if ids.shape != (len(landmarks),) or not np.issubdtype(ids.dtype, np.integer):
                 raise ValueError("ids must be one integer per landmark")
-        z = self.predict(pose, landmarks)
-        mask = self.visible(pose, landmarks)
-        noise = rng.standard_normal((int(mask.sum()), 2)) * (self.sigma_range, self.sigma_bearing)
-        ranges = np.abs(z[mask, 0] + noise[:, 0])
-        bearings = wrap_angle(z[mask, 1] + noise[:, 1])
-        return ranges, bearings, all_ids[mask].astype(np.int64)
+        return self.sample_trusted(pose, landmarks, rng, ids)
+
+    def sample_trusted(self, pose, landmarks, rng: np.random.Generator, ids=None) -> tuple[FloatArray, FloatArray, NDArray[np.int64]]:
+        """:meth:`sample` without input checks, for the simulator's inner loop."""
+        z = self.predict_trusted(pose, landmarks)
+        visible = np.flatnonzero(self._visible(z))
+        noise = rng.standard_normal((len(visible), 2))
+        ranges = np.abs(z[visible, 0] + noise[:, 0] * self.sigma_range)
+        bearings = (z[visible, 1] + noise[:, 1] * self.sigma_bearing + np.pi) % (2.0 * np.pi) - np.pi
+        visible_ids = visible if ids is None else np.asarray(ids)[visible].astype(np.int64)
+        return ranges, bearings, visible_ids

@@ -335,7 +335,7 @@ class SEIF(SlamFilter):
     # -- step 1 ------------------------------------------------------------------
     def _predict(self, control: FloatArray, dt: float) -> None:
         store = self._store
-        delta, jacobian, noise = self.motion.linearize(store.mean[:3], control, dt)
+        delta, jacobian, noise = self._linearize(store.mean[:3], control, dt)
         if self._compiled:
             store.reserve_degree(self._active, len(self._active))
             _kernels.predict(
@@ -356,7 +356,8 @@ class SEIF(SlamFilter):
         store = self._store
         if np.any(is_new):
             # zero information of their own: the measurement below supplies it (SEIF.md, sensor)
-            store.add_landmarks(self.sensor.inverse(store.mean[:3], ranges[is_new], bearings[is_new]))
+            inverse = getattr(self.sensor, "inverse_trusted", self.sensor.inverse)
+            store.add_landmarks(inverse(store.mean[:3], ranges[is_new], bearings[is_new]))
             if store.capacity > len(self._last_observed):
                 self._last_observed = np.concatenate(
                     [self._last_observed, np.zeros(store.capacity - len(self._last_observed), dtype=np.int64)]
@@ -496,7 +497,10 @@ class SEIF(SlamFilter):
         indices = np.asarray(landmark_indices, dtype=np.int64).reshape(-1)
         if np.any((indices < 0) | (indices >= self.num_landmarks)):
             raise ValueError(f"landmark_indices must lie in [0, {self.num_landmarks}), got {indices}")
-        nodes = np.concatenate([self._active, np.unique(indices[~self._is_active[indices]])])
+        outside = indices[~self._is_active[indices]]
+        if len(outside) > 1 and len(set(outside.tolist())) < len(outside):
+            outside = np.unique(outside)
+        nodes = np.concatenate([self._active, outside])
         store = self._store
         if self._compiled:
             return _kernels.blanket_covariances(
@@ -508,9 +512,7 @@ class SEIF(SlamFilter):
 
     def landmark_std(self) -> FloatArray:
         """``sqrt(trace(Omega_ii^-1))`` per landmark: the conditional uncertainty, in O(n) without a solve."""
-        info = self._store.landmark_info[: self.num_landmarks]
-        det = info[:, 0, 0] * info[:, 1, 1] - info[:, 0, 1] * info[:, 1, 0]
-        return np.sqrt((info[:, 0, 0] + info[:, 1, 1]) / det)
+        return _kernels.conditional_std(self._store.landmark_info, self.num_landmarks)
 
     # -- SlamFilter hooks ------------------------------------------------------------
     def _mean_vector(self) -> FloatArray:

@@ -1,0 +1,910 @@
+"""Baseline exploration agents for the ``SeifExplore`` environments.
+
+Every agent is an :class:`Agent` and has Stable-Baselines3's
+``predict(observation, state=None, episode_start=None, deterministic=False)
+-> (action, state)``, so a baseline and a trained SB3 model are used the same
+way. Build one by name with :func:`make_agent`; :data:`BASELINES` lists the
+names.
+
+============= ======================= =================================================
+name          reads                   what it does
+============= ======================= =================================================
+``random``    nothing                 uniform actions in ``[-1, 1]^2`` from a seeded
+                                      ``numpy.random.Generator``
+``frontier``  the observation         drives to the nearest / largest unswept region
+                                      of ``obs["belief_map"]`` inside the arena, slows
+                                      down in front of the arena's outside
+``revisit``   the observation         explores like ``frontier``; when the pose gets
+                                      uncertain (or every ``period`` steps) drives back
+                                      to the most uncertain of the ``K`` listed
+                                      landmarks to re-observe it (close a loop)
+``info_gain`` the filter (belief)     rolls constant-``(v, w)`` arcs through a copy of
+                                      the filter with the expected measurements and
+                                      picks the largest uncertainty reduction plus an
+                                      exploration term
+============= ======================= =================================================
+
+No agent reads the ground truth. The observation-only agents accept
+``env=None``; given an env they only read its *configuration* (the arena
+size, the observation's ``map_extent`` and ``std_scale``, the sensor's range
+and field of view) to convert the normalised observation into metres.
+``info_gain`` keeps a reference to ``env.unwrapped`` and reads its
+``filter`` (deep-copied for the rollouts), ``sensor``, ``motion``,
+``robot_config``, ``world_config.arena_size`` and
+``observation_config.map_extent`` -- never ``world``.
+
+Observation geometry (see ``seif_gym.observation``): ``obs["pose"]`` is
+``(x/h, y/h, cos θ, sin θ, σx/s, σy/s, σθ/π)`` with ``h`` half the arena side;
+``obs["landmarks"]`` rows are ``(forward, left)`` in the robot frame divided by
+the arena diagonal ``2√2·h``, then the 95 % ellipse semi-axes divided by ``s``;
+``obs["belief_map"]`` is a heading-up raster of ``±map_extent`` metres, row 0
+ahead and column 0 to the left, channels (swept, landmark certainty, outside
+the arena). Cell ``(i, j)`` has its centre ``forward = e − (i + ½)·c``,
+``left = e − (j + ½)·c`` metres from the robot (``c = 2e/H``).
+
+>>> import gymnasium as gym
+>>> import seif_gym
+>>> from agents import make_agent
+>>> env = gym.make("SeifExplore-v0", max_episode_steps=5)
+>>> agent = make_agent("frontier", env)
+>>> obs, info = env.reset(seed=0)
+>>> action, state = agent.predict(obs, episode_start=True)
+>>> action.shape, action.dtype.name
+((2,), 'float32')
+"""
+
+from __future__ import annotations
+
+import copy
+import math
+import time
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Any, ClassVar
+
+import gymnasium as gym
+import numpy as np
+from numpy.typing import NDArray
+from scipy.ndimage import uniform_filter
+
+__all__ = [
+    "Agent",
+    "RandomAgent",
+    "FrontierAgent",
+    "RevisitAgent",
+    "InfoGainAgent",
+    "Geometry",
+    "BASELINES",
+    "make_agent",
+]
+
+FloatArray = NDArray[np.float64]
+Observation = Mapping[str, np.ndarray]
+
+#: ``diagonal / h`` of a square arena: landmark offsets in ``obs["landmarks"]``
+#: times this are in units of ``h`` (half the arena side), like ``obs["pose"]``.
+_DIAGONAL_OVER_HALF = 2.0 * math.sqrt(2.0)
+
+
+# -- geometry --------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class Geometry:
+    """Configuration needed to read the normalised observation in metres.
+
+    Attributes
+    ----------
+    arena_size : float
+        Side of the square arena, metres (``h = arena_size / 2``).
+    map_extent : float
+        Half-width of ``obs["belief_map"]``, metres.
+    std_scale : float
+        Divisor of the standard deviations in the observation.
+    sensor_range : float
+        Range of the sensor, metres.
+    fov : float
+        Full opening angle of the sensor, radians.
+    step_length : float
+        Distance of one step at full forward speed (``max_speed·dt``), metres.
+    """
+
+    arena_size: float = 20.0
+    map_extent: float = 8.0
+    std_scale: float = 1.0
+    sensor_range: float = 5.0
+    fov: float = math.pi
+    step_length: float = 0.25
+
+    @property
+    def half(self) -> float:
+        """``h``, half the arena side, metres."""
+        return 0.5 * self.arena_size
+
+    @classmethod
+    def from_env(cls, env: Any | None, **overrides: float | None) -> Geometry:
+        """Read the geometry from ``env``'s configuration (never its world).
+
+        Parameters
+        ----------
+        env : gymnasium.Env or None
+            A ``SeifExplore`` env (any wrapper); ``None`` keeps the defaults
+            (those of ``SeifExplore-v0``).
+        **overrides
+            Explicit values (``None`` is ignored); they win over ``env``.
+        """
+        values: dict[str, float] = {}
+        base = _unwrapped(env)
+        if base is not None:
+            world_config = getattr(base, "world_config", None)
+            obs_config = getattr(base, "observation_config", None)
+            sensor = getattr(base, "sensor", None)
+            robot_config = getattr(base, "robot_config", None)
+            if world_config is not None:
+                values["arena_size"] = float(world_config.arena_size)
+            if obs_config is not None:
+                values["map_extent"] = float(obs_config.map_extent)
+                values["std_scale"] = float(obs_config.std_scale)
+            if sensor is not None:
+                values["sensor_range"] = float(sensor.max_range)
+                values["fov"] = float(sensor.fov)
+            if robot_config is not None:
+                values["step_length"] = float(robot_config.max_speed * robot_config.dt)
+        values.update({key: float(value) for key, value in overrides.items() if value is not None})
+        return cls(**values)
+
+
+def _unwrapped(env: Any | None) -> Any | None:
+    """``env.unwrapped`` if ``env`` is a gymnasium env, else ``env`` (or ``None``)."""
+    if env is None:
+        return None
+    return getattr(env, "unwrapped", env)
+
+
+def _heading(pose: np.ndarray) -> float:
+    return math.atan2(float(pose[3]), float(pose[2]))
+
+
+def _wrap(angle: float) -> float:
+    return (angle + math.pi) % (2.0 * math.pi) - math.pi
+
+
+class _Raster:
+    """Cell-centre coordinates (metres, robot frame) of a ``belief_map`` raster."""
+
+    def __init__(self, size: int, extent: float) -> None:
+        self.size = size
+        self.extent = extent
+        self.cell = 2.0 * extent / size
+        centres = extent - (np.arange(size) + 0.5) * self.cell
+        # forward varies along rows (axis 0), left along columns (axis 1)
+        self.forward, self.left = np.meshgrid(centres, centres, indexing="ij")
+        self.distance = np.hypot(self.forward, self.left)
+        self.bearing = np.arctan2(self.left, self.forward)
+
+
+# -- the interface ---------------------------------------------------------------------------------
+class Agent:
+    """Base class of the baselines: SB3's ``predict`` over per-env ``_act``.
+
+    Subclasses implement :meth:`_act` for one (unbatched) observation and,
+    if they keep memory, :meth:`_new_state`. :meth:`predict` accepts a single
+    observation dict (arrays of the observation space's shapes) or a batched
+    one (a leading ``n_envs`` axis, as a ``VecEnv`` returns), like an SB3
+    model, and keeps one memory per env index.
+
+    Parameters
+    ----------
+    env : gymnasium.Env or None
+        The env the agent acts in. Observation-only agents use it only for
+        its configuration (see :class:`Geometry`) and accept ``None``.
+    """
+
+    #: Name under which :func:`make_agent` builds the agent.
+    name: ClassVar[str] = "agent"
+    #: Whether the agent needs the env's filter (``env`` may not be ``None``).
+    needs_filter: ClassVar[bool] = False
+
+    def __init__(self, env: Any | None = None) -> None:
+        self.env = env
+        self._states: dict[int, Any] = {}
+
+    # -- for subclasses ----------------------------------------------------------------------------
+    def _new_state(self) -> Any:
+        """Fresh memory of one env at an episode start (``None``: memoryless)."""
+        return None
+
+    def _act(self, observation: Observation, index: int) -> np.ndarray:
+        """Action ``(2,)`` in ``[-1, 1]`` for the unbatched ``observation`` of env ``index``."""
+        raise NotImplementedError
+
+    def _state(self, index: int) -> Any:
+        if index not in self._states:
+            self._states[index] = self._new_state()
+        return self._states[index]
+
+    # -- public ------------------------------------------------------------------------------------
+    def reset(self, index: int | None = None) -> None:
+        """Forget the memory of env ``index`` (all envs when ``None``): a new episode starts."""
+        if index is None:
+            self._states.clear()
+        else:
+            self._states.pop(int(index), None)
+
+    def predict(
+        self,
+        observation: Observation,
+        state: Any = None,
+        episode_start: Any = None,
+        deterministic: bool = False,
+    ) -> tuple[np.ndarray, Any]:
+        """Actions for ``observation``, with SB3's signature.
+
+        Parameters
+        ----------
+        observation : dict of numpy.ndarray
+            One observation of the env's ``Dict`` space, or a batch of them
+            (every entry with a leading ``n_envs`` axis).
+        state : Any, optional
+            Returned unchanged (the recurrent state of SB3; the baselines
+            keep their memory inside, per env index).
+        episode_start : bool or array_like of bool, optional
+            ``True`` for the envs whose episode has just started: their
+            memory is reset first. Shape ``(n_envs,)`` for a batch.
+        deterministic : bool, optional
+            Ignored: ``random`` always samples (that is its point), the
+            other baselines are deterministic.
+
+        Returns
+        -------
+        action : numpy.ndarray of float32
+            Shape ``(2,)`` for a single observation, ``(n_envs, 2)`` for a
+            batch; values in ``[-1, 1]``.
+        state : Any
+            ``state``, unchanged.
+        """
+        if not isinstance(observation, Mapping) or "pose" not in observation:
+            raise TypeError(f"observation must be the env's dict observation, got {type(observation).__name__}")
+        pose = np.asarray(observation["pose"])
+        if pose.ndim not in (1, 2) or pose.shape[-1] != 7:
+            raise ValueError(f'observation["pose"] must have shape (7,) or (n_envs, 7), got {pose.shape}')
+        batched = pose.ndim == 2
+        count = pose.shape[0] if batched else 1
+        if episode_start is not None:
+            starts = np.broadcast_to(np.asarray(episode_start, dtype=bool).reshape(-1), (count,))
+            for index in np.flatnonzero(starts):
+                self.reset(int(index))
+        actions = np.empty((count, 2), dtype=np.float32)
+        for index in range(count):
+            single = {key: np.asarray(value)[index] if batched else np.asarray(value) for key, value in observation.items()}
+            actions[index] = np.clip(self._act(single, index), -1.0, 1.0)
+        return (actions if batched else actions[0]), state
+
+    def __repr__(self) -> str:
+        return f"{type(self).__name__}()"
+
+
+# -- random ----------------------------------------------------------------------------------------
+class RandomAgent(Agent):
+    """Uniform random actions in ``[-1, 1]^2``.
+
+    Parameters
+    ----------
+    env : gymnasium.Env or None
+        Unused.
+    seed : int or None
+        Seed of the agent's ``numpy.random.Generator``; the same seed gives
+        the same action sequence.
+    """
+
+    name = "random"
+
+    def __init__(self, env: Any | None = None, *, seed: int | None = None) -> None:
+        super().__init__(env)
+        self.seed = seed
+        self.rng = np.random.default_rng(seed)
+
+    def _act(self, observation: Observation, index: int) -> np.ndarray:
+        return self.rng.uniform(-1.0, 1.0, 2)
+
+    def __repr__(self) -> str:
+        return f"RandomAgent(seed={self.seed})"
+
+
+# -- frontier --------------------------------------------------------------------------------------
+@dataclass
+class _ExploreMemory:
+    """Memory of the exploring agents.
+
+    ``visited`` is a coarse visit grid over the arena in units of ``h``
+    (``[-1, 1]^2``); ``last_position`` (units of ``h``) and ``last_speed``
+    (action) detect a bump into the wall; ``escape`` counts the steps left
+    turning away after one.
+    """
+
+    visited: NDArray[np.bool_]
+    steps: int = 0
+    last_position: FloatArray | None = None
+    last_speed: float = 0.0
+    escape: int = 0
+    bumps: int = 0
+
+
+@dataclass
+class _RevisitMemory(_ExploreMemory):
+    mode: str = "explore"
+    target: FloatArray | None = None  # normalised world position of the revisited landmark
+    mode_steps: int = 0
+    last_revisit: int = 0
+    revisits: int = 0
+
+
+class FrontierAgent(Agent):
+    """Drive to the nearest / largest unswept region of the belief map.
+
+    Each step:
+
+    1. Candidate cells of ``obs["belief_map"]`` are those *unswept*
+       (channel 0 < ½) and *inside the arena* (channel 2 < ½).
+    2. Each candidate scores ``density / (1 + cost / cost_scale)``:
+       ``density`` is the fraction of candidates in its ``window × window``
+       neighbourhood (large unswept regions first), ``cost = distance +
+       turn_cost·|bearing|`` in metres (near regions, and regions ahead,
+       first). The best cell is the target.
+    3. If the raster holds no candidate (all around is swept), the target is
+       the nearest cell of a coarse ``grid × grid`` visit map of the arena
+       (kept from ``obs["pose"]``) that the robot has not been in.
+    4. Steering: turn rate ``clip(gain·bearing)``, forward speed
+       ``max(cos bearing, 0)`` times a slow-down ``clip((d − stop)/slow)``,
+       ``d`` the distance to the nearest outside-arena cell in a corridor of
+       half-width ``corridor`` ahead.
+    5. Bump: the env turns a step that would leave the arena into a turn in
+       place and tells the filter, so an estimated position that barely
+       moves (less than ``bump_fraction`` of the commanded step) after a
+       commanded forward speed above ``0.3`` means the robot is at a wall
+       the (drifted) belief map does not show yet. It then turns in place
+       for ``escape_steps`` steps.
+
+    Deterministic; uses the observation only.
+
+    Parameters
+    ----------
+    env : gymnasium.Env or None
+        Only its configuration is read (:meth:`Geometry.from_env`).
+    turn_cost : float
+        Metres of travel one radian of turning is worth.
+    cost_scale : float
+        Metres at which the score of a region has halved.
+    window : int
+        Side of the neighbourhood measuring the size of a region, cells.
+    gain : float
+        Turn-rate action per radian of bearing to the target.
+    corridor, stop, slow : float
+        Half-width of the corridor checked for the wall, the distance at
+        which the robot stops in front of it and the distance over which it
+        slows down, metres.
+    grid : int
+        Side of the coarse visit map.
+    bump_fraction : float
+        Fraction of the commanded step below which a step counts as a bump.
+    escape_steps : int
+        Steps of turning in place after a bump.
+    arena_size, map_extent, std_scale : float, optional
+        Override the configuration read from ``env`` (defaults: those of
+        ``SeifExplore-v0``).
+    """
+
+    name = "frontier"
+
+    def __init__(
+        self,
+        env: Any | None = None,
+        *,
+        turn_cost: float = 1.5,
+        cost_scale: float = 3.0,
+        window: int = 5,
+        gain: float = 1.5,
+        corridor: float = 0.75,
+        stop: float = 0.6,
+        slow: float = 1.5,
+        grid: int = 8,
+        bump_fraction: float = 0.2,
+        escape_steps: int = 6,
+        arena_size: float | None = None,
+        map_extent: float | None = None,
+        std_scale: float | None = None,
+    ) -> None:
+        super().__init__(env)
+        self.geometry = Geometry.from_env(env, arena_size=arena_size, map_extent=map_extent, std_scale=std_scale)
+        self.turn_cost = float(turn_cost)
+        self.cost_scale = float(cost_scale)
+        self.window = int(window)
+        self.gain = float(gain)
+        self.corridor = float(corridor)
+        self.stop = float(stop)
+        self.slow = float(slow)
+        self.grid = int(grid)
+        self.bump_fraction = float(bump_fraction)
+        self.escape_steps = int(escape_steps)
+        self._raster: _Raster | None = None
+
+    def _new_state(self) -> _ExploreMemory:
+        return _ExploreMemory(visited=np.zeros((self.grid, self.grid), dtype=bool))
+
+    def raster(self, size: int) -> _Raster:
+        """Cell geometry of a ``size × size`` belief map (cached)."""
+        if self._raster is None or self._raster.size != size:
+            self._raster = _Raster(size, self.geometry.map_extent)
+        return self._raster
+
+    # -- pieces shared with revisit and info_gain ---------------------------------------------------
+    def _visit(self, memory: _ExploreMemory, pose: np.ndarray) -> bool:
+        """Record ``pose`` in the memory; ``True`` if the last step was a bump (step 5)."""
+        position = np.asarray(pose[:2], dtype=np.float64)
+        cell = np.clip(((position + 1.0) * 0.5 * self.grid).astype(int), 0, self.grid - 1)
+        memory.visited[cell[0], cell[1]] = True
+        memory.steps += 1
+        bumped = False
+        if memory.last_position is not None and memory.last_speed > 0.3:
+            moved = float(np.hypot(*(position - memory.last_position))) * self.geometry.half
+            bumped = moved < self.bump_fraction * memory.last_speed * self.geometry.step_length
+        memory.last_position = position
+        if bumped:
+            memory.escape = self.escape_steps
+            memory.bumps += 1
+        return bumped
+
+    def _escaping(self, memory: _ExploreMemory) -> np.ndarray | None:
+        """The turn-in-place action while escaping from a bump, else ``None``."""
+        if memory.escape <= 0:
+            return None
+        memory.escape -= 1
+        return np.array([0.0, 1.0])
+
+    @staticmethod
+    def _remember(memory: _ExploreMemory, action: np.ndarray) -> np.ndarray:
+        memory.last_speed = float(action[0])
+        return action
+
+    def frontier_target(self, observation: Observation) -> tuple[float, float] | None:
+        """``(forward, left)`` metres of the chosen unswept cell, or ``None`` if there is none."""
+        belief = np.asarray(observation["belief_map"], dtype=np.float64)
+        raster = self.raster(belief.shape[1])
+        candidate = (belief[0] < 0.5) & (belief[2] < 0.5)
+        if not candidate.any():
+            return None
+        density = uniform_filter(candidate.astype(np.float64), size=self.window, mode="constant")
+        cost = raster.distance + self.turn_cost * np.abs(raster.bearing)
+        score = np.where(candidate, density / (1.0 + cost / self.cost_scale), -np.inf)
+        i, j = np.unravel_index(int(np.argmax(score)), score.shape)
+        return float(raster.forward[i, j]), float(raster.left[i, j])
+
+    def grid_target(self, memory: _ExploreMemory, pose: np.ndarray) -> tuple[float, float]:
+        """``(forward, left)`` metres to the nearest unvisited cell of the visit map."""
+        if memory.visited.all():
+            memory.visited[:] = False
+        centres = (np.arange(self.grid) + 0.5) / self.grid * 2.0 - 1.0
+        gx, gy = np.meshgrid(centres, centres, indexing="ij")
+        dx, dy = gx - float(pose[0]), gy - float(pose[1])
+        theta = _heading(pose)
+        bearing = np.abs(np.vectorize(_wrap)(np.arctan2(dy, dx) - theta))
+        cost = np.hypot(dx, dy) * self.geometry.half + self.turn_cost * bearing
+        cost[memory.visited] = np.inf
+        i, j = np.unravel_index(int(np.argmin(cost)), cost.shape)
+        return _to_robot_frame(gx[i, j] - float(pose[0]), gy[i, j] - float(pose[1]), theta, self.geometry.half)
+
+    def wall_clearance(self, observation: Observation) -> float:
+        """Distance ahead to the nearest outside-arena cell in the corridor, metres (``inf`` if none)."""
+        belief = np.asarray(observation["belief_map"])
+        raster = self.raster(belief.shape[1])
+        blocked = (belief[2] >= 0.5) & (raster.forward > 0.0) & (np.abs(raster.left) <= self.corridor + 0.5 * raster.cell)
+        if not blocked.any():
+            return math.inf
+        return float(raster.forward[blocked].min() - 0.5 * raster.cell)
+
+    def steer(self, observation: Observation, forward: float, left: float) -> np.ndarray:
+        """Action towards the point ``(forward, left)`` (metres, robot frame), slowing at the wall."""
+        bearing = math.atan2(left, forward)
+        turn = float(np.clip(self.gain * bearing, -1.0, 1.0))
+        speed = max(math.cos(bearing), 0.0)
+        clearance = self.wall_clearance(observation)
+        speed *= float(np.clip((clearance - self.stop) / self.slow, 0.0, 1.0))
+        return np.array([speed, turn])
+
+    def explore(self, observation: Observation, memory: _ExploreMemory) -> np.ndarray:
+        """The frontier action (steps 1-4 of the class docstring)."""
+        target = self.frontier_target(observation)
+        if target is None:
+            target = self.grid_target(memory, np.asarray(observation["pose"]))
+        return self.steer(observation, *target)
+
+    def _act(self, observation: Observation, index: int) -> np.ndarray:
+        memory = self._state(index)
+        self._visit(memory, np.asarray(observation["pose"]))
+        escape = self._escaping(memory)
+        return self._remember(memory, escape if escape is not None else self.explore(observation, memory))
+
+    def __repr__(self) -> str:
+        return f"{type(self).__name__}(geometry={self.geometry})"
+
+
+def _to_robot_frame(dx_h: float, dy_h: float, theta: float, half: float) -> tuple[float, float]:
+    """World offset in units of ``h`` -> ``(forward, left)`` metres."""
+    c, s = math.cos(theta), math.sin(theta)
+    return (c * dx_h + s * dy_h) * half, (-s * dx_h + c * dy_h) * half
+
+
+# -- revisit ---------------------------------------------------------------------------------------
+class RevisitAgent(FrontierAgent):
+    """Explore like ``frontier``; now and then drive back to an uncertain landmark.
+
+    A revisit starts when the pose's position standard deviation
+    ``hypot(σx, σy)`` (from ``obs["pose"]``) exceeds ``pose_std_threshold``
+    metres, or ``period`` steps after the last revisit, but not within
+    ``cooldown`` steps of the last one. Its target is the landmark with the
+    largest 95 % ellipse (``obs["landmarks"][:, 2]``) among the ``K`` listed
+    (``target="least_uncertain"``: the smallest, an old well-mapped
+    landmark that anchors the pose, a classic loop closure): its position is fixed in the arena frame at that moment (from the
+    normalised offsets), and the robot drives to it until it is within
+    ``reach`` metres or ``max_revisit_steps`` have passed, then explores
+    again. Re-observing a landmark mapped earlier ties the current pose to
+    the older part of the map (a loop closure) and shrinks both
+    uncertainties.
+
+    Deterministic; uses the observation only.
+
+    Parameters
+    ----------
+    env : gymnasium.Env or None
+        Only its configuration is read.
+    pose_std_threshold : float
+        Position standard deviation (metres) that triggers a revisit.
+    period : int
+        Steps after which a revisit starts anyway.
+    cooldown : int
+        Steps after a revisit during which no new one starts.
+    reach : float
+        Distance to the target landmark (metres) that ends a revisit.
+    max_revisit_steps : int
+        Longest revisit, steps.
+    target : {"most_uncertain", "least_uncertain"}
+        Which of the listed landmarks is revisited.
+    **kwargs
+        Passed to :class:`FrontierAgent`.
+    """
+
+    name = "revisit"
+
+    def __init__(
+        self,
+        env: Any | None = None,
+        *,
+        pose_std_threshold: float = 0.25,
+        period: int = 100,
+        cooldown: int = 30,
+        reach: float = 1.5,
+        max_revisit_steps: int = 60,
+        target: str = "most_uncertain",
+        **kwargs: Any,
+    ) -> None:
+        super().__init__(env, **kwargs)
+        if target not in ("most_uncertain", "least_uncertain"):
+            raise ValueError(f"target must be 'most_uncertain' or 'least_uncertain', got {target!r}")
+        self.target = target
+        self.pose_std_threshold = float(pose_std_threshold)
+        self.period = int(period)
+        self.cooldown = int(cooldown)
+        self.reach = float(reach)
+        self.max_revisit_steps = int(max_revisit_steps)
+
+    def _new_state(self) -> _RevisitMemory:
+        return _RevisitMemory(visited=np.zeros((self.grid, self.grid), dtype=bool))
+
+    def pose_std(self, observation: Observation) -> float:
+        """Position standard deviation of the estimate, metres."""
+        pose = np.asarray(observation["pose"], dtype=np.float64)
+        return float(math.hypot(pose[4], pose[5]) * self.geometry.std_scale)
+
+    def _choose_target(self, observation: Observation) -> FloatArray | None:
+        mask = np.asarray(observation["landmarks_mask"]) > 0.5
+        if not mask.any():
+            return None
+        rows = np.asarray(observation["landmarks"], dtype=np.float64)
+        if self.target == "most_uncertain":
+            row = rows[int(np.argmax(np.where(mask, rows[:, 2], -np.inf)))]
+        else:
+            row = rows[int(np.argmin(np.where(mask, rows[:, 2], np.inf)))]
+        pose = np.asarray(observation["pose"], dtype=np.float64)
+        theta = _heading(pose)
+        c, s = math.cos(theta), math.sin(theta)
+        forward, left = row[0] * _DIAGONAL_OVER_HALF, row[1] * _DIAGONAL_OVER_HALF  # units of h
+        return np.array([pose[0] + c * forward - s * left, pose[1] + s * forward + c * left])
+
+    def _act(self, observation: Observation, index: int) -> np.ndarray:
+        memory: _RevisitMemory = self._state(index)
+        pose = np.asarray(observation["pose"], dtype=np.float64)
+        if self._visit(memory, pose) and memory.mode == "revisit":
+            # the target is behind a wall the drifted belief does not show: give it up
+            memory.mode, memory.target, memory.last_revisit = "explore", None, memory.steps
+        escape = self._escaping(memory)
+        if escape is not None:
+            return self._remember(memory, escape)
+        since = memory.steps - memory.last_revisit
+        if memory.mode == "explore" and since >= self.cooldown:
+            if self.pose_std(observation) > self.pose_std_threshold or since >= self.period:
+                target = self._choose_target(observation)
+                if target is not None:
+                    memory.mode, memory.target, memory.mode_steps = "revisit", target, 0
+                    memory.revisits += 1
+        if memory.mode == "revisit":
+            memory.mode_steps += 1
+            forward, left = _to_robot_frame(
+                memory.target[0] - pose[0], memory.target[1] - pose[1], _heading(pose), self.geometry.half
+            )
+            if math.hypot(forward, left) > self.reach and memory.mode_steps <= self.max_revisit_steps:
+                return self._remember(memory, self.steer(observation, forward, left))
+            memory.mode, memory.target, memory.last_revisit = "explore", None, memory.steps
+        return self._remember(memory, self.explore(observation, memory))
+
+
+# -- information gain ------------------------------------------------------------------------------
+@dataclass
+class _PlanMemory(_ExploreMemory):
+    action: NDArray[np.float64] = field(default_factory=lambda: np.zeros(2))
+    repeat: int = 0
+
+
+#: Names of the env attributes :class:`InfoGainAgent` reads (nothing else).
+INFO_GAIN_READS = ("filter", "sensor", "motion", "robot_config", "world_config", "observation_config")
+
+
+class InfoGainAgent(FrontierAgent):
+    """Pick the constant-``(v, w)`` arc with the largest expected information gain.
+
+    Every ``replan_every`` steps, for each candidate arc (every ``(v, w)`` of
+    ``speeds × turn_rates``, as actions in ``[-1, 1]``):
+
+    1. a deep copy of the env's filter is rolled ``horizon`` steps forward:
+       ``predict`` with the arc's control, then ``update`` with the
+       *expected*, noise-free measurements (``sensor.predict`` of the
+       estimated landmark positions) of the mapped landmarks inside the
+       sensor's range and field of view from the predicted pose;
+    2. ``gain`` = decrease of ``sum(landmark_std) + pose_weight·sqrt(σx² + σy²)``
+       (the pose from ``local_marginals``) from now to the horizon's end;
+    3. ``explore`` = area (m²) of the unswept, in-arena cells of
+       ``obs["belief_map"]`` that the sensor would sweep from the predicted
+       poses, plus ``progress_weight`` times the progress (metres) towards
+       the ``frontier`` agent's target, which pulls the robot to unswept
+       space beyond the horizon;
+    4. ``walls`` = number of predicted poses closer than ``wall_margin`` to
+       the arena's side (from the estimate and ``world_config.arena_size``).
+
+    Score ``gain + exploration_weight·explore − wall_penalty·walls``; the best
+    arc is executed ``replan_every`` times (a bump, detected as by
+    ``frontier``, interrupts it with a turn in place and a new plan). The wall time of each plan is
+    appended to :attr:`planning_times` (seconds).
+
+    New landmarks are not predicted (the planner does not know where they
+    are); the exploration term stands for them.
+
+    Parameters
+    ----------
+    env : gymnasium.Env, sequence of them, or a ``DummyVecEnv``
+        The env(s) whose filter is the belief; env ``i`` serves batch row
+        ``i``. Reads only :data:`INFO_GAIN_READS` of ``env.unwrapped``.
+    horizon : int
+        Steps of each rollout.
+    replan_every : int
+        Steps between plans (the chosen action is repeated in between).
+    speeds, turn_rates : sequence of float
+        Candidate forward-speed and turn-rate actions; ``(0, ±1)`` (turning
+        in place) is always added.
+    exploration_weight : float
+        Weight of a square metre of newly swept area (metres of standard
+        deviation per m²).
+    progress_weight : float
+        Square metres one metre of progress to the frontier target is worth.
+    pose_weight : float
+        Weight of the pose's position standard deviation in the uncertainty.
+    wall_margin, wall_penalty : float
+        Distance to the arena's side counted as a wall contact (metres),
+        and the penalty of one.
+    **kwargs
+        Passed to :class:`FrontierAgent` (the frontier target's options).
+    """
+
+    name = "info_gain"
+    needs_filter = True
+
+    def __init__(
+        self,
+        env: Any,
+        *,
+        horizon: int = 8,
+        replan_every: int = 4,
+        speeds: Sequence[float] = (0.5, 1.0),
+        turn_rates: Sequence[float] = (-1.0, -0.5, 0.0, 0.5, 1.0),
+        exploration_weight: float = 0.01,
+        progress_weight: float = 5.0,
+        pose_weight: float = 1.0,
+        wall_margin: float = 0.5,
+        wall_penalty: float = 1.0,
+        **kwargs: Any,
+    ) -> None:
+        envs = _env_list(env)
+        if not envs:
+            raise ValueError("info_gain needs the env (it plans with the env's filter): make_agent('info_gain', env)")
+        super().__init__(envs[0], **kwargs)
+        self.envs = [_unwrapped(e) for e in envs]
+        if int(horizon) < 1 or int(replan_every) < 1:
+            raise ValueError(f"horizon and replan_every must be positive, got {horizon}, {replan_every}")
+        self.horizon = int(horizon)
+        self.replan_every = int(replan_every)
+        arcs = {(float(v), float(w)) for v in speeds for w in turn_rates} | {(0.0, 1.0), (0.0, -1.0)}
+        self.candidates = np.array(sorted(arcs), dtype=np.float64)
+        if np.any(np.abs(self.candidates) > 1.0):
+            raise ValueError("speeds and turn_rates are actions and must lie in [-1, 1]")
+        self.exploration_weight = float(exploration_weight)
+        self.progress_weight = float(progress_weight)
+        self.pose_weight = float(pose_weight)
+        self.wall_margin = float(wall_margin)
+        self.wall_penalty = float(wall_penalty)
+        #: Wall time of every plan, seconds.
+        self.planning_times: list[float] = []
+        #: Score terms of the last plan: candidates (c, 2), gain, explore, walls, score (c,).
+        self.last_plan: dict[str, np.ndarray] = {}
+
+    def _new_state(self) -> _PlanMemory:
+        return _PlanMemory(visited=np.zeros((self.grid, self.grid), dtype=bool))
+
+    def _env(self, index: int) -> Any:
+        if index >= len(self.envs):
+            raise ValueError(f"batch row {index} has no env: info_gain was given {len(self.envs)} env(s)")
+        return self.envs[index]
+
+    def uncertainty(self, filt: Any) -> float:
+        """``sum(landmark_std) + pose_weight·sqrt(σx² + σy²)`` of ``filt``'s belief."""
+        pose_cov, _ = filt.local_marginals(np.empty(0, dtype=np.int64))
+        total = float(np.sum(filt.landmark_std())) if filt.num_landmarks else 0.0
+        return total + self.pose_weight * math.sqrt(max(pose_cov[0, 0] + pose_cov[1, 1], 0.0))
+
+    def _rollout(self, base: Any, control: FloatArray) -> tuple[Any, FloatArray]:
+        """Copy of the filter after ``horizon`` steps of ``control``, and the predicted poses (horizon, 3)."""
+        filt = copy.deepcopy(base.filter)
+        dt = float(base.robot_config.dt)
+        sensor = base.sensor
+        ids = np.array(filt.landmark_ids, dtype=np.int64)
+        landmarks = np.array(filt.landmarks, dtype=np.float64)
+        half_fov = 0.5 * float(sensor.fov)
+        poses = np.empty((self.horizon, 3))
+        empty_f, empty_i = np.empty(0), np.empty(0, dtype=np.int64)
+        for t in range(self.horizon):
+            filt.predict_trusted(control, dt)
+            pose = np.array(filt.pose, dtype=np.float64)
+            poses[t] = pose
+            if len(ids):
+                z = sensor.predict_trusted(pose, landmarks)
+                visible = (z[:, 0] > 0.0) & (z[:, 0] <= sensor.max_range)
+                if half_fov < math.pi:
+                    visible &= np.abs(z[:, 1]) <= half_fov
+                if visible.any():
+                    filt.update_trusted(z[visible, 0].copy(), z[visible, 1].copy(), ids[visible])
+                    continue
+            filt.update_trusted(empty_f, empty_f, empty_i)
+        return filt, poses
+
+    def _swept_area(self, observation: Observation, poses: FloatArray, start: FloatArray) -> float:
+        """Area (m²) of unswept in-arena cells of the belief map the sensor sweeps from ``poses``."""
+        belief = np.asarray(observation["belief_map"])
+        raster = self.raster(belief.shape[1])
+        candidate = (belief[0] < 0.5) & (belief[2] < 0.5)
+        if not candidate.any():
+            return 0.0
+        c, s = math.cos(start[2]), math.sin(start[2])
+        r2 = self.geometry.sensor_range**2
+        half_fov = 0.5 * self.geometry.fov
+        covered = np.zeros_like(candidate)
+        for pose in poses:
+            dx, dy = pose[0] - start[0], pose[1] - start[1]
+            px, py = c * dx + s * dy, -s * dx + c * dy  # (forward, left) of the predicted pose
+            df, dl = raster.forward - px, raster.left - py
+            seen = df * df + dl * dl <= r2
+            if half_fov < math.pi:
+                bearing = np.arctan2(dl, df) - (pose[2] - start[2])
+                seen &= np.abs((bearing + np.pi) % (2.0 * np.pi) - np.pi) <= half_fov
+            covered |= seen
+        return float(np.count_nonzero(covered & candidate)) * raster.cell**2
+
+    def plan(self, observation: Observation, index: int = 0) -> np.ndarray:
+        """Score every candidate arc for env ``index`` and return the best action (2,)."""
+        started = time.perf_counter()
+        base = self._env(index)
+        if base.filter is None:
+            raise RuntimeError("the env has no filter yet: reset it before asking info_gain for an action")
+        scale = np.array([base.robot_config.max_speed, base.robot_config.max_turn_rate], dtype=np.float64)
+        half = 0.5 * float(base.world_config.arena_size)
+        start = np.array(base.filter.pose, dtype=np.float64)
+        before = self.uncertainty(base.filter)
+        memory = self._state(index)
+        target = self.frontier_target(observation)
+        if target is None:
+            target = self.grid_target(memory, np.asarray(observation["pose"]))
+        c, s = math.cos(start[2]), math.sin(start[2])
+        target_world = start[:2] + np.array([c * target[0] - s * target[1], s * target[0] + c * target[1]])
+        distance0 = float(np.hypot(*(target_world - start[:2])))
+        count = len(self.candidates)
+        gain, explore, walls = np.zeros(count), np.zeros(count), np.zeros(count)
+        for k, action in enumerate(self.candidates):
+            filt, poses = self._rollout(base, action * scale)
+            gain[k] = before - self.uncertainty(filt)
+            progress = distance0 - float(np.hypot(*(target_world - poses[-1, :2])))
+            explore[k] = self._swept_area(observation, poses, start) + self.progress_weight * progress
+            walls[k] = np.count_nonzero(np.any(np.abs(poses[:, :2]) > half - self.wall_margin, axis=1))
+        score = gain + self.exploration_weight * explore - self.wall_penalty * walls
+        best = int(np.argmax(score))
+        self.last_plan = {"candidates": self.candidates, "gain": gain, "explore": explore, "walls": walls, "score": score}
+        self.planning_times.append(time.perf_counter() - started)
+        return self.candidates[best].copy()
+
+    def _act(self, observation: Observation, index: int) -> np.ndarray:
+        memory: _PlanMemory = self._state(index)
+        self._visit(memory, np.asarray(observation["pose"]))
+        escape = self._escaping(memory)
+        if escape is not None:  # bumped into a wall the belief does not show: turn, then plan afresh
+            memory.repeat = 0
+            return self._remember(memory, escape)
+        if memory.repeat <= 0:
+            memory.action = self.plan(observation, index)
+            memory.repeat = self.replan_every
+        memory.repeat -= 1
+        return self._remember(memory, memory.action)
+
+    @property
+    def mean_planning_time(self) -> float:
+        """Mean wall time of one plan, seconds (``nan`` before the first)."""
+        return float(np.mean(self.planning_times)) if self.planning_times else math.nan
+
+
+def _env_list(env: Any) -> list[Any]:
+    """``env`` as a list of envs: a single env, a sequence of envs, or a ``DummyVecEnv``'s ``envs``."""
+    if env is None:
+        return []
+    if isinstance(env, gym.Env):
+        return [env]
+    if "envs" in getattr(env, "__dict__", {}):  # a DummyVecEnv (looked up without probing other envs)
+        return list(env.envs)
+    if isinstance(env, Sequence) and not isinstance(env, (str, bytes)):
+        return list(env)
+    return [env]
+
+
+# -- factory ---------------------------------------------------------------------------------------
+_REGISTRY: dict[str, type[Agent]] = {
+    cls.name: cls for cls in (RandomAgent, FrontierAgent, RevisitAgent, InfoGainAgent)
+}
+
+#: Names accepted by :func:`make_agent`.
+BASELINES: tuple[str, ...] = tuple(_REGISTRY)
+
+
+def make_agent(name: str, env: Any | None = None, **kwargs: Any) -> Agent:
+    """Build the baseline ``name``.
+
+    Parameters
+    ----------
+    name : str
+        One of :data:`BASELINES`.
+    env : gymnasium.Env or None
+        The env the agent will act in. ``info_gain`` needs it (it plans with
+        the env's filter); the others only read its configuration and accept
+        ``None``.
+    **kwargs
+        Options of the agent's class (for example ``seed`` for ``random``).
+
+    Returns
+    -------
+    Agent
+    """
+    try:
+        cls = _REGISTRY[name]
+    except KeyError:
+        raise ValueError(f"unknown agent {name!r}; baselines: {', '.join(BASELINES)}") from None
+    return cls(env, **kwargs)

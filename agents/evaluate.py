@@ -1,0 +1,506 @@
+"""Compare agents on the same seeds: ``python -m agents.evaluate``.
+
+.. code-block:: bash
+
+    python -m agents.evaluate --agents random,frontier,revisit,info_gain,runs/ppo/model.zip \\
+        --episodes 10 --seed 1000 [--env SeifExplore-v0] [--env-kwargs '{"layout": "loop"}'] [--out DIR]
+
+Every agent runs ``N`` episodes on the seeds ``S, S+1, …, S+N−1`` (the same
+for every agent; ``env.reset(seed=s)`` fixes the landmark layout, the start
+and all noise of episode ``s``). An agent is a name of
+:data:`agents.BASELINES` (built with ``make_agent(name, env)``; ``random``
+is seeded with ``S``) or the path of a Stable-Baselines3 ``.zip`` (loaded
+with ``PPO.load``; if a ``vecnormalize.pkl`` lies next to it, its observation
+normalisation is applied). Every agent acts with ``deterministic=True``.
+``--env-kwargs`` is a JSON object passed to ``gym.make`` (it may hold
+``max_episode_steps``).
+
+The metrics come from the env's ``info`` (the ground truth is read here, by
+the evaluation, never by the agents). Written to ``--out`` (default
+``eval``):
+
+``results.csv``
+    One row per agent × episode, columns :data:`RESULT_COLUMNS`:
+
+    ==================== ==========================================================
+    column               meaning
+    ==================== ==========================================================
+    ``agent``            agent label (baseline name, or the ``.zip``'s file stem)
+    ``episode``          0 … N−1
+    ``seed``             seed of ``env.reset``
+    ``final_map_error``  ``info["map_error"]`` at the end, metres (mean over all
+                         true landmarks of the capped error, unmapped = ``d_cap``)
+    ``initial_map_error`` ``info["map_error"]`` after ``reset``
+    ``pose_rmse``        RMS over all observations of the episode (reset
+                         included) of ``‖true_pose[:2] − pose_estimate[:2]‖``, m
+    ``landmarks_mapped`` ``info["landmarks_mapped"]`` at the end
+    ``landmarks_total``  ``info["landmarks_total"]``
+    ``return``           sum of the rewards
+    ``length``           steps of the episode
+    ``wall_contacts``    steps with ``info["wall_contact"]``
+    ``diverged``         1 if the episode ended by divergence, else 0
+    ``decision_time_ms`` mean wall time of one ``predict`` call, milliseconds
+    ==================== ==========================================================
+
+``summary.json``
+    ``{key: …}`` with the keys :data:`SUMMARY_KEYS`: ``schema_version``
+    (:data:`SCHEMA_VERSION`), ``env_id``, ``env_kwargs``, ``episodes``,
+    ``seeds`` (list), ``metrics`` (:data:`SUMMARY_METRICS`), ``agents``.
+    ``agents[label]`` has the keys :data:`AGENT_KEYS`: ``spec`` (as given on
+    the command line), ``episodes``, one entry per metric of
+    :data:`SUMMARY_METRICS`, each a dict with the keys :data:`STAT_KEYS`
+    (``mean``, ``std`` (``ddof=1``), ``ci95_low``, ``ci95_high``,
+    ``ci95_half_width``, ``n``; the 95 % confidence interval of the mean
+    from Student's t, ``null`` for a single episode), and
+    ``map_error_over_time``, a dict with the keys :data:`CURVE_KEYS`:
+    ``step`` (0 … longest length), ``mean``, ``ci95_low``, ``ci95_high``
+    of ``info["map_error"]`` over the episodes at each step (an episode that
+    ended early keeps its last value). ``diverged`` is the fraction of
+    diverged episodes.
+
+``map_error.png``
+    The mean map error over time per agent with its 95 % band.
+
+The Markdown table of the means ± CI half-widths is printed and also written
+to ``summary.md``.
+
+From Python: :func:`evaluate_agents` returns ``(rows, summary)`` as above,
+:func:`write_outputs` writes the files.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import math
+import os
+import sys
+import time
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+from scipy import stats
+
+import seif_gym  # noqa: F401  (registers the environments)
+from agents.baselines import BASELINES, Agent, make_agent
+
+__all__ = [
+    "RESULT_COLUMNS",
+    "SUMMARY_KEYS",
+    "SUMMARY_METRICS",
+    "AGENT_KEYS",
+    "STAT_KEYS",
+    "CURVE_KEYS",
+    "SCHEMA_VERSION",
+    "SB3Agent",
+    "evaluate_agents",
+    "write_outputs",
+    "markdown_table",
+    "main",
+]
+
+#: Version of the output schema below; bumped on any change of it.
+SCHEMA_VERSION = 1
+#: Columns of ``results.csv`` (one row per agent × episode), in order.
+RESULT_COLUMNS: tuple[str, ...] = (
+    "agent",
+    "episode",
+    "seed",
+    "final_map_error",
+    "initial_map_error",
+    "pose_rmse",
+    "landmarks_mapped",
+    "landmarks_total",
+    "return",
+    "length",
+    "wall_contacts",
+    "diverged",
+    "decision_time_ms",
+)
+#: Per-episode columns aggregated in ``summary.json`` (mean and 95 % CI each).
+SUMMARY_METRICS: tuple[str, ...] = (
+    "final_map_error",
+    "pose_rmse",
+    "landmarks_mapped",
+    "return",
+    "length",
+    "wall_contacts",
+    "diverged",
+    "decision_time_ms",
+)
+#: Top-level keys of ``summary.json``.
+SUMMARY_KEYS: tuple[str, ...] = ("schema_version", "env_id", "env_kwargs", "episodes", "seeds", "metrics", "agents")
+#: Keys of ``summary.json["agents"][label]``.
+AGENT_KEYS: tuple[str, ...] = ("spec", "episodes", *SUMMARY_METRICS, "map_error_over_time")
+#: Keys of each metric's statistics.
+STAT_KEYS: tuple[str, ...] = ("mean", "std", "ci95_low", "ci95_high", "ci95_half_width", "n")
+#: Keys of ``map_error_over_time``.
+CURVE_KEYS: tuple[str, ...] = ("step", "mean", "ci95_low", "ci95_high")
+
+#: Columns of the printed Markdown table: (metric, header).
+TABLE_COLUMNS: tuple[tuple[str, str], ...] = (
+    ("final_map_error", "final map error (m)"),
+    ("pose_rmse", "pose RMSE (m)"),
+    ("landmarks_mapped", "landmarks mapped"),
+    ("return", "return"),
+    ("length", "length"),
+    ("wall_contacts", "wall contacts"),
+    ("diverged", "diverged"),
+    ("decision_time_ms", "ms / decision"),
+)
+
+
+# -- agents ----------------------------------------------------------------------------------------
+class SB3Agent(Agent):
+    """A saved Stable-Baselines3 PPO model behind the :class:`~agents.baselines.Agent` interface.
+
+    Parameters
+    ----------
+    path : str or Path
+        The model's ``.zip``.
+    env : gymnasium.Env, optional
+        Used only to rebuild a ``VecNormalize`` (its spaces).
+    env_factory : callable, optional
+        Builds an env for ``VecNormalize.load`` when ``vecnormalize.pkl``
+        lies next to ``path``; its observation normalisation (``obs_rms``)
+        is then applied to every observation (statistics frozen).
+    """
+
+    name = "sb3"
+
+    def __init__(self, path: str | os.PathLike, env: Any | None = None, env_factory: Any | None = None) -> None:
+        super().__init__(env)
+        from stable_baselines3 import PPO
+
+        self.path = Path(path)
+        self.model = PPO.load(self.path, device="cpu")
+        self.vecnormalize = None
+        stats_path = self.path.parent / "vecnormalize.pkl"
+        if stats_path.exists():
+            from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
+
+            factory = env_factory if env_factory is not None else (lambda: env)
+            self.vecnormalize = VecNormalize.load(str(stats_path), DummyVecEnv([factory]))
+            self.vecnormalize.training = False
+            self.vecnormalize.norm_reward = False
+
+    def predict(
+        self,
+        observation: Mapping[str, np.ndarray],
+        state: Any = None,
+        episode_start: Any = None,
+        deterministic: bool = False,
+    ) -> tuple[np.ndarray, Any]:
+        """The model's ``predict`` after the saved observation normalisation (if any)."""
+        if self.vecnormalize is not None:
+            observation = self.vecnormalize.normalize_obs(dict(observation))
+        action, state = self.model.predict(observation, state=state, episode_start=episode_start, deterministic=deterministic)
+        return np.asarray(action, dtype=np.float32), state
+
+    def __repr__(self) -> str:
+        return f"SB3Agent({str(self.path)!r}, vecnormalize={self.vecnormalize is not None})"
+
+
+def _is_model_path(spec: str) -> bool:
+    return spec.endswith(".zip")
+
+
+def _labels(specs: Sequence[str]) -> list[str]:
+    labels: list[str] = []
+    for spec in specs:
+        label = Path(spec).stem if _is_model_path(spec) else spec
+        base, k = label, 2
+        while label in labels:
+            label, k = f"{base}#{k}", k + 1
+        labels.append(label)
+    return labels
+
+
+def build_agent(spec: str, env: gym.Env, env_id: str, env_kwargs: Mapping[str, Any], seed: int) -> Agent:
+    """The agent of ``spec``: a baseline name, or the path of an SB3 ``.zip``."""
+    if _is_model_path(spec):
+        if not Path(spec).exists():
+            raise FileNotFoundError(f"no model at {spec}")
+        return SB3Agent(spec, env, env_factory=lambda: gym.make(env_id, **env_kwargs))
+    if spec not in BASELINES:
+        raise ValueError(f"unknown agent {spec!r}: use one of {', '.join(BASELINES)} or the path of an SB3 .zip")
+    return make_agent(spec, env, **({"seed": seed} if spec == "random" else {}))
+
+
+# -- running ---------------------------------------------------------------------------------------
+def run_episode(agent: Agent, env: gym.Env, seed: int) -> tuple[dict[str, Any], list[float]]:
+    """One episode of ``agent`` in ``env`` from ``env.reset(seed=seed)``.
+
+    Returns
+    -------
+    row : dict
+        The :data:`RESULT_COLUMNS` but ``agent`` and ``episode``.
+    map_errors : list of float
+        ``info["map_error"]`` after the reset and after every step.
+    """
+    observation, info = env.reset(seed=seed)
+    if hasattr(agent, "reset"):
+        agent.reset()
+    map_errors = [float(info["map_error"])]
+    squared = [float(np.sum((info["true_pose"][:2] - info["pose_estimate"][:2]) ** 2))]
+    total, length, walls, diverged, thinking = 0.0, 0, 0, False, 0.0
+    state, start = None, True
+    while True:
+        started = time.perf_counter()
+        action, state = agent.predict(observation, state=state, episode_start=np.array([start]), deterministic=True)
+        thinking += time.perf_counter() - started
+        start = False
+        observation, reward, terminated, truncated, info = env.step(np.asarray(action).reshape(2))
+        total += float(reward)
+        length += 1
+        walls += int(bool(info["wall_contact"]))
+        diverged = diverged or bool(info["diverged"])
+        map_errors.append(float(info["map_error"]))
+        squared.append(float(np.sum((info["true_pose"][:2] - info["pose_estimate"][:2]) ** 2)))
+        if terminated or truncated:
+            break
+    row = {
+        "seed": int(seed),
+        "final_map_error": map_errors[-1],
+        "initial_map_error": map_errors[0],
+        "pose_rmse": float(math.sqrt(np.mean(squared))),
+        "landmarks_mapped": int(info["landmarks_mapped"]),
+        "landmarks_total": int(info["landmarks_total"]),
+        "return": total,
+        "length": length,
+        "wall_contacts": walls,
+        "diverged": int(diverged),
+        "decision_time_ms": 1e3 * thinking / max(length, 1),
+    }
+    return row, map_errors
+
+
+def _finite_or_none(value: float) -> float | None:
+    return float(value) if value is not None and math.isfinite(value) else None
+
+
+def mean_ci(values: Sequence[float], confidence: float = 0.95) -> dict[str, float | int | None]:
+    """Mean, std (``ddof=1``) and the Student-t confidence interval of the mean (keys :data:`STAT_KEYS`)."""
+    data = np.asarray(values, dtype=np.float64)
+    n = int(data.size)
+    mean = float(np.mean(data)) if n else math.nan
+    if n >= 2:
+        std = float(np.std(data, ddof=1))
+        half = float(stats.t.ppf(0.5 + 0.5 * confidence, n - 1) * std / math.sqrt(n))
+    else:
+        std = half = math.nan
+    return {
+        "mean": _finite_or_none(mean),
+        "std": _finite_or_none(std),
+        "ci95_low": _finite_or_none(mean - half),
+        "ci95_high": _finite_or_none(mean + half),
+        "ci95_half_width": _finite_or_none(half),
+        "n": n,
+    }
+
+
+def _curve(traces: Sequence[Sequence[float]]) -> dict[str, list]:
+    longest = max(len(trace) for trace in traces)
+    padded = np.array([list(trace) + [trace[-1]] * (longest - len(trace)) for trace in traces], dtype=np.float64)
+    n = len(traces)
+    mean = padded.mean(axis=0)
+    if n >= 2:
+        half = stats.t.ppf(0.975, n - 1) * padded.std(axis=0, ddof=1) / math.sqrt(n)
+        low, high = (mean - half).tolist(), (mean + half).tolist()
+    else:
+        low = high = [None] * longest
+    return {"step": list(range(longest)), "mean": mean.tolist(), "ci95_low": low, "ci95_high": high}
+
+
+def evaluate_agents(
+    agent_specs: Sequence[str],
+    episodes: int,
+    seed: int,
+    env_id: str = "SeifExplore-v0",
+    env_kwargs: Mapping[str, Any] | None = None,
+    *,
+    verbose: bool = False,
+) -> tuple[list[dict[str, Any]], dict[str, Any]]:
+    """Run every agent on the seeds ``seed … seed + episodes − 1``.
+
+    Parameters
+    ----------
+    agent_specs : sequence of str
+        Baseline names (:data:`agents.BASELINES`) and/or SB3 ``.zip`` paths.
+    episodes : int
+        Episodes per agent.
+    seed : int
+        First seed.
+    env_id : str
+        A registered env id.
+    env_kwargs : mapping, optional
+        Keyword arguments of ``gym.make`` (may include ``max_episode_steps``).
+    verbose : bool
+        Print one line per agent when it is done.
+
+    Returns
+    -------
+    rows : list of dict
+        One per agent × episode, keys :data:`RESULT_COLUMNS`.
+    summary : dict
+        Keys :data:`SUMMARY_KEYS` (see the module docstring).
+    """
+    if isinstance(agent_specs, str):
+        agent_specs = [spec for spec in agent_specs.split(",") if spec]
+    if not agent_specs:
+        raise ValueError("give at least one agent")
+    if int(episodes) < 1:
+        raise ValueError(f"episodes must be positive, got {episodes}")
+    env_kwargs = dict(env_kwargs or {})
+    seeds = [int(seed) + k for k in range(int(episodes))]
+    rows: list[dict[str, Any]] = []
+    agents_summary: dict[str, Any] = {}
+    for spec, label in zip(agent_specs, _labels(agent_specs)):
+        env = gym.make(env_id, **env_kwargs)
+        try:
+            agent = build_agent(spec, env, env_id, env_kwargs, int(seed))
+            started = time.perf_counter()
+            agent_rows, traces = [], []
+            for episode, episode_seed in enumerate(seeds):
+                row, trace = run_episode(agent, env, episode_seed)
+                agent_rows.append({"agent": label, "episode": episode, **row})
+                traces.append(trace)
+        finally:
+            env.close()
+        rows.extend(agent_rows)
+        entry: dict[str, Any] = {"spec": spec, "episodes": len(seeds)}
+        for metric in SUMMARY_METRICS:
+            entry[metric] = mean_ci([row[metric] for row in agent_rows])
+        entry["map_error_over_time"] = _curve(traces)
+        agents_summary[label] = entry
+        if verbose:
+            planning = getattr(agent, "mean_planning_time", None)
+            extra = f", {1e3 * planning:.2f} ms per plan" if planning is not None and math.isfinite(planning) else ""
+            print(f"{label}: {len(seeds)} episodes in {time.perf_counter() - started:.1f} s{extra}", file=sys.stderr)
+    summary = {
+        "schema_version": SCHEMA_VERSION,
+        "env_id": env_id,
+        "env_kwargs": env_kwargs,
+        "episodes": len(seeds),
+        "seeds": seeds,
+        "metrics": list(SUMMARY_METRICS),
+        "agents": agents_summary,
+    }
+    return rows, summary
+
+
+# -- output ----------------------------------------------------------------------------------------
+def _format(stat: Mapping[str, Any], digits: int = 3) -> str:
+    mean, half = stat["mean"], stat["ci95_half_width"]
+    if mean is None:
+        return "n/a"
+    return f"{mean:.{digits}f}" if half is None else f"{mean:.{digits}f} ± {half:.{digits}f}"
+
+
+def markdown_table(summary: Mapping[str, Any]) -> str:
+    """The means ± 95 % CI half-widths of ``summary``, one row per agent, as a Markdown table."""
+    headers = ["agent", *(header for _, header in TABLE_COLUMNS)]
+    lines = ["| " + " | ".join(headers) + " |", "|" + "|".join(["---"] + ["--:"] * len(TABLE_COLUMNS)) + "|"]
+    for label, entry in summary["agents"].items():
+        digits = {"length": 1, "wall_contacts": 1, "landmarks_mapped": 1, "decision_time_ms": 2, "diverged": 2}
+        cells = [_format(entry[metric], digits.get(metric, 3)) for metric, _ in TABLE_COLUMNS]
+        lines.append("| " + " | ".join([label, *cells]) + " |")
+    return "\n".join(lines)
+
+
+def write_outputs(rows: Sequence[Mapping[str, Any]], summary: Mapping[str, Any], out: str | os.PathLike) -> dict[str, Path]:
+    """Write ``results.csv``, ``summary.json``, ``summary.md`` and ``map_error.png`` into ``out``.
+
+    Returns
+    -------
+    dict
+        ``{"csv", "json", "markdown", "plot"}`` -> path written.
+    """
+    folder = Path(out)
+    folder.mkdir(parents=True, exist_ok=True)
+    paths = {
+        "csv": folder / "results.csv",
+        "json": folder / "summary.json",
+        "markdown": folder / "summary.md",
+        "plot": folder / "map_error.png",
+    }
+    with paths["csv"].open("w", newline="") as handle:
+        writer = csv.DictWriter(handle, fieldnames=list(RESULT_COLUMNS))
+        writer.writeheader()
+        for row in rows:
+            writer.writerow({column: row[column] for column in RESULT_COLUMNS})
+    paths["json"].write_text(json.dumps(summary, indent=2, allow_nan=False) + "\n")
+    paths["markdown"].write_text(markdown_table(summary) + "\n")
+    plot_map_error(summary, paths["plot"])
+    return paths
+
+
+def plot_map_error(summary: Mapping[str, Any], path: str | os.PathLike) -> None:
+    """Mean map error over time per agent, with the 95 % band, saved to ``path``."""
+    import matplotlib
+
+    matplotlib.use("Agg", force=False)
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(7, 4), dpi=120)
+    for label, entry in summary["agents"].items():
+        curve = entry["map_error_over_time"]
+        steps = np.asarray(curve["step"])
+        line = ax.plot(steps, curve["mean"], label=label)[0]
+        if curve["ci95_low"] and curve["ci95_low"][0] is not None:
+            ax.fill_between(steps, curve["ci95_low"], curve["ci95_high"], color=line.get_color(), alpha=0.2, linewidth=0)
+    ax.set_xlabel("step")
+    ax.set_ylabel("map error (m)")
+    ax.set_title(f"{summary['env_id']}: mean map error, 95% CI ({summary['episodes']} episodes)")
+    ax.grid(alpha=0.3)
+    ax.legend()
+    fig.tight_layout()
+    fig.savefig(path)
+    plt.close(fig)
+
+
+# -- command line ----------------------------------------------------------------------------------
+def _parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="python -m agents.evaluate",
+        description="Run agents on the same seeds of a SeifExplore env and compare them.",
+    )
+    parser.add_argument(
+        "--agents",
+        required=True,
+        help=f"comma-separated baseline names ({', '.join(BASELINES)}) and/or paths of SB3 .zip models",
+    )
+    parser.add_argument("--episodes", type=int, default=10, help="episodes per agent (default 10)")
+    parser.add_argument("--seed", type=int, default=0, help="seed of the first episode (default 0)")
+    parser.add_argument("--env", default="SeifExplore-v0", help="registered env id (default SeifExplore-v0)")
+    parser.add_argument("--env-kwargs", default="{}", help="JSON object of gym.make keyword arguments")
+    parser.add_argument("--out", default="eval", help="output folder (default ./eval)")
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Command-line entry point; returns the exit status."""
+    args = _parser().parse_args(argv)
+    try:
+        env_kwargs = json.loads(args.env_kwargs)
+    except json.JSONDecodeError as error:
+        raise SystemExit(f"--env-kwargs is not valid JSON: {error}") from None
+    if not isinstance(env_kwargs, dict):
+        raise SystemExit("--env-kwargs must be a JSON object")
+    specs = [spec.strip() for spec in args.agents.split(",") if spec.strip()]
+    started = time.perf_counter()
+    rows, summary = evaluate_agents(specs, args.episodes, args.seed, args.env, env_kwargs, verbose=True)
+    paths = write_outputs(rows, summary, args.out)
+    print(f"{args.env}, {args.episodes} episodes per agent, seeds {args.seed}..{args.seed + args.episodes - 1}; "
+          "mean ± 95% CI half-width\n")  # fmt: skip
+    print(markdown_table(summary))
+    print(f"\nwrote {', '.join(str(path) for path in paths.values())} in {time.perf_counter() - started:.1f} s")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,287 @@
+"""Tests of the agents (``agents``) and of the evaluation (``agents.evaluate``).
+
+* every baseline runs on every registered variant, reading no ground truth:
+  the agents get a guarded view of the env whose ``world`` (and every other
+  truth: the true trajectory, the map error) raises on any use, while the real
+  env produces the observations; the observation-only agents also run with
+  ``env=None``;
+* ``predict`` follows SB3 (single and batched observations, ``episode_start``);
+* ``random`` is reproducible per seed;
+* the evaluation writes the documented CSV columns and JSON keys.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import os
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+os.environ.setdefault("MPLBACKEND", "Agg")
+
+import seif_gym  # noqa: E402  (registers the environments)
+from agents import BASELINES, Agent, make_agent  # noqa: E402
+from agents import evaluate  # noqa: E402
+from agents.baselines import INFO_GAIN_READS  # noqa: E402
+
+OBS_ONLY = tuple(name for name in BASELINES if name != "info_gain")
+#: Configuration the observation-only agents may read (to turn the observation into metres).
+CONFIG_READS = ("world_config", "observation_config", "sensor", "robot_config")
+TRUTH = ("world", "trajectory", "map_error", "_map_error", "_log_det_criterion", "_info", "step", "reset")
+
+
+class GroundTruthAccess(AssertionError):
+    """An agent touched the ground truth."""
+
+
+class PoisonedWorld:
+    """Stands in for ``env.unwrapped.world``: any attribute access raises."""
+
+    def __getattribute__(self, name: str):
+        raise GroundTruthAccess(f"an agent read world.{name}")
+
+    def __bool__(self) -> bool:
+        raise GroundTruthAccess("an agent tested the world")
+
+
+class GuardedEnv:
+    """A view of a real env for the agent: ``world`` is poisoned, the rest is forwarded and logged.
+
+    The real env (stepped by the test) keeps its true world; the agent only
+    ever sees this view, as ``env`` and as ``env.unwrapped``.
+    """
+
+    def __init__(self, env: gym.Env) -> None:
+        object.__setattr__(self, "_base", env.unwrapped)
+        object.__setattr__(self, "reads", set())
+
+    @property
+    def unwrapped(self) -> "GuardedEnv":
+        return self
+
+    def __getattr__(self, name: str):
+        if name == "world":
+            return PoisonedWorld()
+        if name in TRUTH:
+            raise GroundTruthAccess(f"an agent read env.{name}")
+        self.reads.add(name)
+        return getattr(self._base, name)
+
+
+def run_short(env: gym.Env, agent: Agent, seed: int = 0) -> list[np.ndarray]:
+    """Run one episode (the env's time limit); return the actions."""
+    obs, _ = env.reset(seed=seed)
+    actions, start, done = [], True, False
+    while not done:
+        action, state = agent.predict(obs, episode_start=start)
+        assert state is None
+        assert action.shape == (2,) and action.dtype == np.float32
+        assert np.all(np.abs(action) <= 1.0) and np.all(np.isfinite(action))
+        actions.append(action)
+        obs, _, terminated, truncated, _ = env.step(action)
+        start, done = False, terminated or truncated
+    return actions
+
+
+def agent_kwargs(name: str) -> dict:
+    return {"seed": 0} if name == "random" else {}
+
+
+# -- the interface ----------------------------------------------------------------------------------
+def test_registry() -> None:
+    assert BASELINES == ("random", "frontier", "revisit", "info_gain")
+    env = gym.make("SeifExplore-v0", max_episode_steps=5)
+    for name in BASELINES:
+        agent = make_agent(name, env)
+        assert isinstance(agent, Agent) and agent.name == name
+        assert callable(agent.predict)
+    with pytest.raises(ValueError, match="unknown agent"):
+        make_agent("nope", env)
+    with pytest.raises(ValueError, match="needs the env"):
+        make_agent("info_gain", None)
+
+
+# -- every baseline on every variant, without the ground truth ---------------------------------------
+@pytest.mark.parametrize("name", BASELINES)
+@pytest.mark.parametrize("env_id", list(seif_gym.VARIANTS))
+def test_baseline_runs_on_variant_without_truth(env_id: str, name: str) -> None:
+    env = gym.make(env_id, max_episode_steps=30)
+    view = GuardedEnv(env)
+    agent = make_agent(name, view, **agent_kwargs(name))
+    actions = run_short(env, agent)
+    assert len(actions) == 30
+    allowed = INFO_GAIN_READS if name == "info_gain" else CONFIG_READS
+    assert view.reads <= set(allowed), f"{name} read {sorted(view.reads - set(allowed))}"
+    if name == "info_gain":
+        assert "filter" in view.reads and agent.planning_times
+    else:
+        assert "filter" not in view.reads  # the observation is all it uses
+    if name in ("frontier", "revisit"):
+        assert np.any(np.stack(actions)[:, 0] > 0.1), "it should drive somewhere"
+
+
+@pytest.mark.parametrize("name", OBS_ONLY)
+def test_observation_only_agents_need_no_env(name: str) -> None:
+    env = gym.make("SeifExploreLoop-v0", max_episode_steps=30)
+    run_short(env, make_agent(name, None, **agent_kwargs(name)), seed=3)
+    # a copy of the observation (no link to the env at all) gives the same action
+    obs, _ = env.reset(seed=4)
+    first, _ = make_agent(name, None, **agent_kwargs(name)).predict({k: v.copy() for k, v in obs.items()})
+    second, _ = make_agent(name, None, **agent_kwargs(name)).predict(obs)
+    np.testing.assert_array_equal(first, second)
+
+
+def test_obs_only_agents_given_env_match_env_none_on_default_config() -> None:
+    """With the default configuration the env adds nothing: same actions with and without it."""
+    env = gym.make("SeifExplore-v0", max_episode_steps=40)
+    for name in ("frontier", "revisit"):
+        with_env = run_short(env, make_agent(name, GuardedEnv(env)), seed=7)
+        without = run_short(env, make_agent(name, None), seed=7)
+        np.testing.assert_array_equal(np.stack(with_env), np.stack(without))
+
+
+def test_info_gain_is_deterministic_and_reads_only_the_belief() -> None:
+    env = gym.make("SeifExplore-v0", max_episode_steps=25)
+    runs = []
+    for _ in range(2):
+        view = GuardedEnv(env)
+        runs.append(np.stack(run_short(env, make_agent("info_gain", view, replan_every=2), seed=11)))
+        assert view.reads <= set(INFO_GAIN_READS)
+    np.testing.assert_array_equal(runs[0], runs[1])
+
+
+def test_the_guard_catches_a_cheating_agent() -> None:
+    class Cheater(Agent):
+        def _act(self, observation, index):
+            landmarks = self.env.unwrapped.world.landmarks  # the truth: not allowed
+            return np.zeros(2) + 0 * len(landmarks)
+
+    env = gym.make("SeifExplore-v0", max_episode_steps=5)
+    with pytest.raises(GroundTruthAccess):
+        run_short(env, Cheater(GuardedEnv(env)))
+    with pytest.raises(GroundTruthAccess):
+        GuardedEnv(env).trajectory
+
+
+# -- predict: single and batched ------------------------------------------------------------------
+def _batch(observations: list[dict]) -> dict:
+    return {key: np.stack([obs[key] for obs in observations]) for key in observations[0]}
+
+
+@pytest.mark.parametrize("name", BASELINES)
+def test_predict_batched_matches_single(name: str) -> None:
+    envs = [gym.make("SeifExplore-v0", max_episode_steps=20) for _ in range(3)]
+    observations = [env.reset(seed=20 + k)[0] for k, env in enumerate(envs)]
+    batched_agent = make_agent(name, envs if name == "info_gain" else envs[0], **agent_kwargs(name))
+    single_agents = [make_agent(name, env, **agent_kwargs(name)) for env in envs]
+    for step in range(6):
+        actions, state = batched_agent.predict(_batch(observations), episode_start=np.full(3, step == 0))
+        assert state is None
+        assert actions.shape == (3, 2) and actions.dtype == np.float32
+        assert np.all(np.abs(actions) <= 1.0)
+        if name != "random":  # memory is per env row: the batch equals one agent per env
+            for k in range(3):
+                single, _ = single_agents[k].predict(observations[k], episode_start=step == 0)
+                np.testing.assert_array_equal(actions[k], single)
+        observations = [env.step(action)[0] for env, action in zip(envs, actions)]
+
+
+def test_predict_on_a_vec_env() -> None:
+    from stable_baselines3.common.vec_env import DummyVecEnv
+
+    venv = DummyVecEnv([lambda: gym.make("SeifExploreClustered-v0", max_episode_steps=10) for _ in range(2)])
+    venv.seed(5)
+    agents = [make_agent(name, venv, **agent_kwargs(name)) for name in BASELINES]
+    obs = venv.reset()
+    starts = np.ones(2, dtype=bool)
+    for _ in range(12):  # across an episode boundary
+        for agent in agents[:-1]:
+            actions, _ = agent.predict(obs, episode_start=starts)
+            assert actions.shape == (2, 2)
+        actions, _ = agents[-1].predict(obs, episode_start=starts)  # info_gain drives
+        obs, _, dones, _ = venv.step(actions)
+        starts = dones
+    with pytest.raises(ValueError, match="no env"):
+        make_agent("info_gain", venv.envs[0]).predict(obs)
+    with pytest.raises(TypeError):
+        agents[0].predict(np.zeros(7))
+
+
+# -- random ---------------------------------------------------------------------------------------
+def test_random_is_reproducible_per_seed() -> None:
+    env = gym.make("SeifExplore-v0", max_episode_steps=15)
+    a = np.stack(run_short(env, make_agent("random", None, seed=42)))
+    b = np.stack(run_short(env, make_agent("random", None, seed=42)))
+    c = np.stack(run_short(env, make_agent("random", None, seed=43)))
+    np.testing.assert_array_equal(a, b)
+    assert not np.array_equal(a, c)
+    assert a.min() < -0.5 and a.max() > 0.5
+
+
+# -- evaluation -----------------------------------------------------------------------------------
+def test_schema_is_documented() -> None:
+    doc = evaluate.__doc__
+    for name in (*evaluate.RESULT_COLUMNS, *evaluate.SUMMARY_KEYS, *evaluate.AGENT_KEYS, *evaluate.STAT_KEYS,
+                 *evaluate.CURVE_KEYS):  # fmt: skip
+        assert f"``{name}``" in doc, f"{name} is not documented in agents.evaluate"
+    assert set(evaluate.SUMMARY_METRICS) <= set(evaluate.RESULT_COLUMNS)
+
+
+def test_evaluation_writes_the_documented_schema(tmp_path) -> None:
+    specs = ["random", "frontier", "revisit", "info_gain"]
+    rows, summary = evaluate.evaluate_agents(specs, 2, 7, "SeifExplore-v0", {"max_episode_steps": 20})
+    paths = evaluate.write_outputs(rows, summary, tmp_path)
+    with open(paths["csv"], newline="") as handle:
+        reader = csv.DictReader(handle)
+        assert tuple(reader.fieldnames) == evaluate.RESULT_COLUMNS
+        table = list(reader)
+    assert len(table) == len(specs) * 2
+    for agent in specs:  # the same seeds for every agent
+        assert [row["seed"] for row in table if row["agent"] == agent] == ["7", "8"]
+    assert all(row["length"] == "20" for row in table)
+    data = json.loads(paths["json"].read_text())
+    assert tuple(data) == evaluate.SUMMARY_KEYS
+    assert data["schema_version"] == evaluate.SCHEMA_VERSION
+    assert data["seeds"] == [7, 8] and data["episodes"] == 2 and data["env_kwargs"] == {"max_episode_steps": 20}
+    assert list(data["agents"]) == specs
+    for entry in data["agents"].values():
+        assert tuple(entry) == evaluate.AGENT_KEYS
+        for metric in evaluate.SUMMARY_METRICS:
+            stat = entry[metric]
+            assert tuple(stat) == evaluate.STAT_KEYS and stat["n"] == 2
+            assert stat["ci95_low"] <= stat["mean"] <= stat["ci95_high"]
+        curve = entry["map_error_over_time"]
+        assert tuple(curve) == evaluate.CURVE_KEYS and len(curve["mean"]) == 21
+    assert data == json.loads(json.dumps(summary))
+    assert paths["plot"].stat().st_size > 0
+    assert "| frontier |" in paths["markdown"].read_text()
+    # the metrics agree with the rows
+    frontier = [float(row["final_map_error"]) for row in table if row["agent"] == "frontier"]
+    assert data["agents"]["frontier"]["final_map_error"]["mean"] == pytest.approx(np.mean(frontier))
+
+
+def test_cli_with_an_sb3_model_and_vecnormalize(tmp_path, capsys) -> None:
+    from stable_baselines3 import PPO
+    from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
+
+    venv = VecNormalize(DummyVecEnv([lambda: gym.make("SeifExplore-v0", max_episode_steps=10)]), norm_reward=False)
+    model = PPO("MultiInputPolicy", venv, n_steps=8, batch_size=8, n_epochs=1, device="cpu", seed=0)
+    model.learn(8)
+    (tmp_path / "model").mkdir()
+    model.save(tmp_path / "model" / "policy.zip")
+    venv.save(tmp_path / "model" / "vecnormalize.pkl")
+    agent = evaluate.build_agent(str(tmp_path / "model" / "policy.zip"), gym.make("SeifExplore-v0"), "SeifExplore-v0", {}, 0)
+    assert agent.vecnormalize is not None and not agent.vecnormalize.training
+    out = tmp_path / "out"
+    status = evaluate.main([
+        "--agents", f"frontier,{tmp_path / 'model' / 'policy.zip'}", "--episodes", "2", "--seed", "3",
+        "--env-kwargs", '{"max_episode_steps": 10}', "--out", str(out),
+    ])  # fmt: skip
+    assert status == 0
+    printed = capsys.readouterr().out
+    assert "| policy |" in printed and "| frontier |" in printed
+    assert {path.name for path in out.iterdir()} == {"results.csv", "summary.json", "summary.md", "map_error.png"}
+    assert list(json.loads((out / "summary.json").read_text())["agents"]) == ["frontier", "policy"]

@@ -325,6 +325,25 @@ def recover_mean(robot_info, robot_links, landmark_info, neighbour_index, neighb
 
 
 @njit(cache=True)
+def blanket_nodes(active, targets, block_position):
+    """``active`` followed by the landmarks of ``targets`` not in it (each once)."""
+    nodes = np.empty(active.shape[0] + targets.shape[0], dtype=np.int64)
+    count = 0
+    for i in active:
+        nodes[count] = i
+        block_position[i] = count
+        count += 1
+    for i in targets:
+        if block_position[i] < 0:
+            nodes[count] = i
+            block_position[i] = count
+            count += 1
+    for p in range(count):
+        block_position[nodes[p]] = -1
+    return nodes[:count]
+
+
+@njit(cache=True)
 def blanket_covariances(robot_info, robot_links, landmark_info, neighbour_index, neighbour_info, neighbour_count,
                         information_vector, mean, block_position, nodes, targets):  # fmt: skip
     """Fast :func:`seif_gym.slam.seif.blanket_covariances`: invert the block over ``nodes``."""

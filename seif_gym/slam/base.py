@@ -270,14 +270,21 @@ class SlamFilter(ABC):
         constant-time Markov-blanket approximation. Meant for per-step
         consumers such as the env's observation and data association.
         """
-        indices = np.asarray(landmark_indices, dtype=np.int64).reshape(-1)
-        if np.any((indices < 0) | (indices >= self.num_landmarks)):
-            raise ValueError(f"landmark_indices must lie in [0, {self.num_landmarks}), got {indices}")
+        indices = self._check_landmark_indices(landmark_indices)
         pose_cov = self._marginal_covariance(np.arange(3))
         covs = np.empty((len(indices), 2, 2))
         for k, index in enumerate(indices.tolist()):
             covs[k] = self._marginal_covariance(np.array([3 + 2 * index, 4 + 2 * index]))
         return pose_cov, covs
+
+    def _check_landmark_indices(self, landmark_indices) -> NDArray[np.int64]:
+        indices = np.asarray(landmark_indices)
+        if indices.ndim != 1 or (indices.size and not np.issubdtype(indices.dtype, np.integer)):
+            raise TypeError(f"landmark_indices must be a 1-D array of integers, got {indices.dtype} {indices.shape}")
+        indices = indices.astype(np.int64, copy=False)
+        if len(indices) and (int(indices.min()) < 0 or int(indices.max()) >= self.num_landmarks):
+            raise ValueError(f"landmark_indices must lie in [0, {self.num_landmarks}), got {indices}")
+        return indices
 
     def landmark_std(self) -> FloatArray:
         """One uncertainty per landmark, ``sqrt(trace)`` of its 2x2 covariance, shape (n,).

@@ -16,6 +16,7 @@ import math
 from typing import Protocol, runtime_checkable
 
 import numpy as np
+from numba import njit
 from numpy.typing import NDArray
 
 from seif_gym.slam._validation import (
@@ -254,6 +255,30 @@ class VelocityMotionModel:
         return np.array([pose[0] + dx, pose[1] + dy, wrap_angle(float(pose[2] + dth))])
 
 
+@njit(cache=True)
+def _visible_measurements(x, y, theta, landmarks, max_range, half_fov):
+    """Indices and noise-free ``(range, bearing)`` of the visible landmarks (``sample``'s inner loop)."""
+    n = landmarks.shape[0]
+    indices = np.empty(n, dtype=np.int64)
+    z = np.empty((n, 2))
+    count = 0
+    limited = half_fov < np.pi
+    for i in range(n):
+        dx = landmarks[i, 0] - x
+        dy = landmarks[i, 1] - y
+        r = np.sqrt(dx * dx + dy * dy)
+        if r > max_range or r <= 0.0:
+            continue
+        bearing = (np.arctan2(dy, dx) - theta + np.pi) % (2.0 * np.pi) - np.pi
+        if limited and abs(bearing) > half_fov:
+            continue
+        indices[count] = i
+        z[count, 0] = r
+        z[count, 1] = bearing
+        count += 1
+    return indices[:count], z[:count]
+
+
 class RangeBearingSensor:
     """Range-bearing landmark sensor with a limited range and field of view.
 
@@ -395,10 +420,11 @@ class RangeBearingSensor:
 
     def sample_trusted(self, pose, landmarks, rng: np.random.Generator, ids=None) -> tuple[FloatArray, FloatArray, NDArray[np.int64]]:
         """:meth:`sample` without input checks, for the simulator's inner loop."""
-        z = self.predict_trusted(pose, landmarks)
-        visible = np.flatnonzero(self._visible(z))
+        visible, z = _visible_measurements(
+            float(pose[0]), float(pose[1]), float(pose[2]), landmarks, self.max_range, 0.5 * self.fov
+        )
         noise = rng.standard_normal((len(visible), 2))
-        ranges = np.abs(z[visible, 0] + noise[:, 0] * self.sigma_range)
-        bearings = (z[visible, 1] + noise[:, 1] * self.sigma_bearing + np.pi) % (2.0 * np.pi) - np.pi
+        ranges = np.abs(z[:, 0] + noise[:, 0] * self.sigma_range)
+        bearings = (z[:, 1] + noise[:, 1] * self.sigma_bearing + np.pi) % (2.0 * np.pi) - np.pi
         visible_ids = visible if ids is None else np.asarray(ids)[visible].astype(np.int64)
         return ranges, bearings, visible_ids

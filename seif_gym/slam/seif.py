@@ -494,20 +494,17 @@ class SEIF(SlamFilter):
         covariance conditioned on the rest of the map, which is tighter than
         the exact marginal (``pose_covariance``, ``landmark_covariance``).
         """
-        indices = np.asarray(landmark_indices, dtype=np.int64).reshape(-1)
-        if np.any((indices < 0) | (indices >= self.num_landmarks)):
-            raise ValueError(f"landmark_indices must lie in [0, {self.num_landmarks}), got {indices}")
-        outside = indices[~self._is_active[indices]]
-        if len(outside) > 1 and len(set(outside.tolist())) < len(outside):
-            outside = np.unique(outside)
-        nodes = np.concatenate([self._active, outside])
+        indices = self._check_landmark_indices(landmark_indices)
         store = self._store
         if self._compiled:
+            nodes = _kernels.blanket_nodes(self._active, indices, store.block_position)
             return _kernels.blanket_covariances(
                 store.robot_info, store.robot_links, store.landmark_info,
                 store.neighbour_index, store.neighbour_info, store.neighbour_count,
                 store.information_vector, store.mean, store.block_position, nodes, indices,
             )  # fmt: skip
+        outside = [i for i in dict.fromkeys(indices.tolist()) if not self._is_active[i]]
+        nodes = np.concatenate([self._active, np.array(outside, dtype=np.int64)])
         return blanket_covariances(store, nodes, indices)
 
     def landmark_std(self) -> FloatArray:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import inspect
 import math
 import time
 from dataclasses import asdict, dataclass
@@ -19,7 +20,7 @@ from seif_gym.slam import FILTERS, RangeBearingSensor, SlamFilter, VelocityMotio
 from seif_gym.slam.models import wrap_angle
 from seif_gym.world import LAYOUTS, World, WorldConfig, make_landmarks
 
-__all__ = ["SeifExploreEnv", "RewardConfig", "RobotConfig", "SensorConfig", "FilterConfig"]
+__all__ = ["SeifExploreEnv", "RewardConfig", "RobotConfig", "SensorConfig", "FilterConfig", "map_error"]
 
 FloatArray = NDArray[np.float64]
 
@@ -87,9 +88,25 @@ class RewardConfig:
             raise ValueError(f"wall_penalty must be a non-negative number, got {self.wall_penalty!r}")
 
 
+def map_error(estimates: FloatArray, truth: FloatArray, ids: NDArray[np.int64], d_cap: float) -> float:
+    """``E_t``: the mean over all true landmarks of ``min(error, d_cap)``, unmapped ones counted as ``d_cap``.
+
+    Parameters
+    ----------
+    estimates : ndarray, shape (m, 2)
+        Estimated positions of the mapped landmarks.
+    truth : ndarray, shape (n, 2)
+        True positions of all landmarks.
+    ids : ndarray of int, shape (m,)
+        Row of ``truth`` of each estimate.
+    d_cap : float
+        Cap of one landmark's error.
+    """
+    return float(_map_error(np.ascontiguousarray(estimates, dtype=np.float64), truth, np.asarray(ids, dtype=np.int64), float(d_cap)))
+
+
 @njit(cache=True)
 def _map_error(estimates, truth, ids, d_cap):
-    """``E_t`` of the class docstring: mean of ``min(error, d_cap)``, unmapped landmarks at ``d_cap``."""
     total = d_cap * (truth.shape[0] - ids.shape[0])
     for k in range(ids.shape[0]):
         dx = estimates[k, 0] - truth[ids[k], 0]
@@ -123,6 +140,10 @@ def _nees(error, covariance):
         y[i] = value / lower[i, i]
         total += y[i] * y[i]
     return total
+
+
+def _no_clock() -> float:
+    return 0.0
 
 
 class SeifExploreEnv(gym.Env):
@@ -228,6 +249,8 @@ class SeifExploreEnv(gym.Env):
     | `wall_penalty` | 0.005 | per step in contact with the wall |
     | `divergence_threshold` | 5.0 | pose error that ends the episode, metres |
     | `nearest_landmarks`, `map_size`, `map_extent`, `std_scale` | 8, 32, 8.0, 1.0 | observation shape (`ObservationConfig`) |
+    | `coverage_resolution` | 0.5 | cell size of the swept-area grid, metres |
+    | `measure_time` | `False` | fill `info["step_time"]` with the wall-clock seconds spent in the filter (otherwise 0.0: wall-clock time would make seeded episodes irreproducible) |
     | `render_mode` | `None` | `"rgb_array"` or `"human"` |
     """
 
@@ -257,6 +280,8 @@ class SeifExploreEnv(gym.Env):
         map_size: int = 32,
         map_extent: float = 8.0,
         std_scale: float = 1.0,
+        coverage_resolution: float = 0.5,
+        measure_time: bool = False,
         render_mode: str | None = None,
     ) -> None:
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
@@ -267,7 +292,11 @@ class SeifExploreEnv(gym.Env):
         self.filter_config = FilterConfig(filter=filter, max_active=max_active)
         self.reward_config = RewardConfig(reward=reward, d_cap=d_cap, wall_penalty=wall_penalty, divergence_threshold=divergence_threshold)
         self.observation_config = ObservationConfig(
-            nearest_landmarks=nearest_landmarks, map_size=map_size, map_extent=map_extent, std_scale=std_scale
+            nearest_landmarks=nearest_landmarks,
+            map_size=map_size,
+            map_extent=map_extent,
+            std_scale=std_scale,
+            coverage_resolution=coverage_resolution,
         )
         self.motion = VelocityMotionModel(alphas=self.robot_config.motion_noise)
         self.sensor = RangeBearingSensor(sigma_range=sigma_range, sigma_bearing=sigma_bearing, max_range=sensor_range, fov=fov)
@@ -277,6 +306,10 @@ class SeifExploreEnv(gym.Env):
         self.observation_space = self.encoder.observation_space
         self.action_space = spaces.Box(-1.0, 1.0, (2,), np.float32)
         self._action_scale = np.array([max_speed, max_turn_rate])
+        if not isinstance(measure_time, bool):
+            raise TypeError(f"measure_time must be a bool, got {type(measure_time).__name__}")
+        self.measure_time = measure_time
+        self._clock = time.perf_counter if measure_time else _no_clock
         self.render_mode = render_mode
         self._renderer = None
         self.world: World | None = None
@@ -292,12 +325,14 @@ class SeifExploreEnv(gym.Env):
     def config(self) -> dict[str, Any]:
         """All constructor arguments (``gym.make`` keyword arguments) but ``render_mode``."""
         merged: dict[str, Any] = {}
-        for part in (self.world_config, self.robot_config, self.sensor_config, self.filter_config, self.reward_config):
+        for part in (
+            self.world_config, self.robot_config, self.sensor_config,
+            self.filter_config, self.reward_config, self.observation_config,
+        ):  # fmt: skip
             merged.update(asdict(part))
-        merged.update(
-            {key: value for key, value in asdict(self.observation_config).items() if key != "coverage_resolution"}
-        )
-        return merged
+        merged["measure_time"] = self.measure_time
+        # only what the constructor takes, so that gym.make(env_id, **env.config) rebuilds the env
+        return {key: value for key, value in merged.items() if key in _CONSTRUCTOR_ARGUMENTS}
 
     # -- gymnasium API -------------------------------------------------------------
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
@@ -318,9 +353,9 @@ class SeifExploreEnv(gym.Env):
         self.estimated_trajectory = [start.copy()]
         self._elapsed_steps = 0
         ranges, bearings, ids = self.world.measure(self._sensor_rng)
-        started = time.perf_counter()
+        started = self._clock()
         self.filter.update_trusted(ranges, bearings, ids)
-        step_time = time.perf_counter() - started
+        step_time = self._clock() - started
         self.encoder.sweep(self.filter.pose)
         self._map_error = self.map_error()
         self._information = self._log_det_criterion() if self.reward_config.reward == "information_gain" else 0.0
@@ -342,11 +377,11 @@ class SeifExploreEnv(gym.Env):
         dt = self.robot_config.dt
         executed, wall = self.world.step(control, dt, self._motion_rng)
         measurement = self.world.measure(self._sensor_rng)
-        started = time.perf_counter()
+        started = self._clock()
         # the simulator's data are valid by construction: skip the filter's input checks
         self.filter.predict_trusted(executed, dt)
         self.filter.update_trusted(*measurement)
-        step_time = time.perf_counter() - started
+        step_time = self._clock() - started
         estimate = self.filter.pose
         self.encoder.sweep(estimate)
         self._elapsed_steps += 1
@@ -373,9 +408,7 @@ class SeifExploreEnv(gym.Env):
     # -- reward and info -------------------------------------------------------------
     def map_error(self) -> float:
         """``E_t``: mean over all true landmarks of ``min(error, d_cap)``, unmapped counted as ``d_cap``."""
-        return float(
-            _map_error(self.filter.landmarks, self.world.landmarks, self.filter.landmark_ids, self.reward_config.d_cap)
-        )
+        return map_error(self.filter.landmarks, self.world.landmarks, self.filter.landmark_ids, self.reward_config.d_cap)
 
     def _log_det_criterion(self) -> float:
         """``-log det Sigma / dims`` over the whole map (unmapped landmarks at the prior ``d_cap^2``).
@@ -440,3 +473,8 @@ class SeifExploreEnv(gym.Env):
         if self._renderer is not None:
             self._renderer.close()
             self._renderer = None
+
+
+
+#: The keyword arguments of SeifExploreEnv (what ``config`` returns, ``render_mode`` aside).
+_CONSTRUCTOR_ARGUMENTS = frozenset(inspect.signature(SeifExploreEnv.__init__).parameters) - {"self", "render_mode"}

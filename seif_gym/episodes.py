@@ -1,0 +1,611 @@
+"""Record episodes of ``SeifExplore`` and replay them through any SLAM filter.
+
+An :class:`Episode` holds everything a filter was given in one episode of
+:class:`~seif_gym.envs.explore.SeifExploreEnv` (the configuration, the
+executed controls and the noisy measurements) together with the ground truth
+(landmarks, true poses) and what the env's own filter estimated. It is saved
+to and loaded from a ``.npz`` file without pickle.
+
+:class:`EpisodeRecorder` wraps an env and records its episodes;
+:func:`replay` feeds an episode through any filter of :mod:`seif_gym.slam`
+(or your own), so that filters are compared on identical data. Replaying
+with the filter and options the env ran reproduces the env's estimates bit
+for bit.
+
+>>> import tempfile, pathlib
+>>> import gymnasium as gym
+>>> import numpy as np
+>>> import seif_gym
+>>> from seif_gym.episodes import Episode, EpisodeRecorder, replay
+>>> env = EpisodeRecorder(gym.make("SeifExplore-v0", max_episode_steps=10))
+>>> _ = env.reset(seed=3)
+>>> _ = env.action_space.seed(3)
+>>> done = False
+>>> while not done:
+...     _, _, terminated, truncated, _ = env.step(env.action_space.sample())
+...     done = terminated or truncated
+>>> episode = env.episode
+>>> with tempfile.TemporaryDirectory() as folder:
+...     path = episode.save(pathlib.Path(folder) / "run.npz")
+...     loaded = Episode.load(path)
+>>> loaded == episode
+True
+>>> own = replay(loaded)                      # the env's filter: its estimates, exactly
+>>> bool(np.array_equal(own.poses, episode.estimated_poses))
+True
+>>> ekf = replay(loaded, "ekf")               # the same data through the EKF
+>>> ekf.poses.shape, ekf.map_errors.shape
+((11, 3), (11,))
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import operator
+import time
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, fields
+from pathlib import Path
+from types import MappingProxyType
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+from numpy.typing import NDArray
+
+from seif_gym.envs.explore import SeifExploreEnv
+from seif_gym.envs.explore import map_error as _env_map_error  # the env's E_t, reused for identical bits
+from seif_gym.slam import FILTERS, RangeBearingSensor, SlamFilter, VelocityMotionModel
+
+__all__ = ["Episode", "EpisodeRecorder", "ReplayResult", "replay", "episode_models"]
+
+FloatArray = NDArray[np.float64]
+IdArray = NDArray[np.int64]
+
+#: Version of the ``.npz`` layout written by :meth:`Episode.save`.
+FORMAT_VERSION = 1
+
+# name -> (dtype, shape with None for a free axis; "T" = steps, "T+1", "T+2")
+_ARRAYS: dict[str, tuple[type, tuple]] = {
+    "landmarks": (np.float64, (None, 2)),
+    "true_poses": (np.float64, ("T+1", 3)),
+    "estimated_poses": (np.float64, ("T+1", 3)),
+    "commanded_controls": (np.float64, ("T", 2)),
+    "executed_controls": (np.float64, ("T", 2)),
+    "ranges": (np.float64, (None,)),
+    "bearings": (np.float64, (None,)),
+    "ids": (np.int64, (None,)),
+    "offsets": (np.int64, ("T+2",)),
+    "rewards": (np.float64, ("T",)),
+    "map_errors": (np.float64, ("T+1",)),
+}
+
+
+def _read_only(array, dtype) -> NDArray:
+    result = np.array(array, dtype=dtype, copy=True)
+    result.setflags(write=False)
+    return result
+
+
+def _json_config(config: Mapping[str, Any]) -> str:
+    if not isinstance(config, Mapping):
+        raise TypeError(f"config must be a mapping of env keyword arguments, got {type(config).__name__}")
+    try:
+        return json.dumps(dict(config), default=_plain)
+    except TypeError as error:
+        raise TypeError(f"config must hold JSON-serialisable values only: {error}") from None
+
+
+def _plain(value):
+    """numpy scalars and arrays as Python numbers and lists, for ``json.dumps``."""
+    if isinstance(value, (np.generic, np.ndarray)):
+        return value.tolist()
+    raise TypeError(f"{type(value).__name__} is not JSON serialisable")
+
+
+def _tuples(value):
+    """Lists back to tuples (JSON has no tuples; the env's config holds tuples)."""
+    if isinstance(value, list):
+        return tuple(_tuples(item) for item in value)
+    if isinstance(value, dict):
+        return {key: _tuples(item) for key, item in value.items()}
+    return value
+
+
+def _config_from_json(text: str) -> MappingProxyType:
+    config = json.loads(text)
+    if not isinstance(config, dict):
+        raise ValueError("the stored config is not a JSON object")
+    return MappingProxyType(_tuples(config))
+
+
+def _arrays_equal(a: NDArray, b: NDArray) -> bool:
+    if a.shape != b.shape or a.dtype != b.dtype:
+        return False
+    return bool(np.array_equal(a, b, equal_nan=a.dtype.kind == "f"))
+
+
+@dataclass(frozen=True, eq=False, repr=False)
+class Episode:
+    """One recorded episode of ``SeifExplore``: the filter's inputs and the ground truth.
+
+    ``T`` is the number of steps. Index ``0`` of the per-time arrays is the
+    reset: the pose at the start and the first measurement, which the env's
+    filter processes before the first step.
+
+    Attributes
+    ----------
+    config : Mapping
+        The env's keyword arguments (``SeifExploreEnv.config``), read only.
+        Sequences are tuples, as in the env.
+    seed : int or None
+        The seed passed to the ``reset`` that started the episode (``None``:
+        the episode continued the env's random stream).
+    dt : float
+        Seconds per step.
+    landmarks : ndarray (n, 2)
+        True landmark positions; a landmark's id is its row.
+    true_poses, estimated_poses : ndarray (T + 1, 3)
+        True poses and the env's filter estimate, after the reset and after
+        each step.
+    commanded_controls : ndarray (T, 2)
+        ``(v, omega)`` commanded by the (clipped, scaled) actions.
+    executed_controls : ndarray (T, 2)
+        What the robot executed and the filter was told (``v = 0`` at a wall).
+    ranges, bearings : ndarray (M,)
+        All measurements of steps ``0 .. T`` concatenated.
+    ids : ndarray (M,) of int64
+        Their landmark ids.
+    offsets : ndarray (T + 2,) of int64
+        Step ``t``'s measurements are ``[offsets[t]:offsets[t + 1]]``.
+    rewards : ndarray (T,)
+        Rewards returned by the recorded env.
+    map_errors : ndarray (T + 1,)
+        The env's map error ``E_t`` (``info["map_error"]``).
+
+    All arrays are read-only copies; two episodes compare equal when their
+    config, seed, dt and every array (shape, dtype and values) are equal.
+    """
+
+    config: Mapping[str, Any]
+    seed: int | None
+    dt: float
+    landmarks: FloatArray
+    true_poses: FloatArray
+    estimated_poses: FloatArray
+    commanded_controls: FloatArray
+    executed_controls: FloatArray
+    ranges: FloatArray
+    bearings: FloatArray
+    ids: IdArray
+    offsets: IdArray
+    rewards: FloatArray
+    map_errors: FloatArray
+
+    def __post_init__(self) -> None:
+        set_field = object.__setattr__
+        set_field(self, "config", _config_from_json(_json_config(self.config)))
+        if self.seed is not None:
+            if isinstance(self.seed, bool):
+                raise TypeError("seed must be an int or None, got bool")
+            set_field(self, "seed", operator.index(self.seed))
+        if isinstance(self.dt, bool) or not isinstance(self.dt, (int, float, np.integer, np.floating)):
+            raise TypeError(f"dt must be a number, got {type(self.dt).__name__}")
+        dt = float(self.dt)
+        if not (math.isfinite(dt) and dt > 0):
+            raise ValueError(f"dt must be a positive number, got {self.dt!r}")
+        set_field(self, "dt", dt)
+        for name, (dtype, _) in _ARRAYS.items():
+            set_field(self, name, _read_only(getattr(self, name), dtype))
+        steps = len(self.commanded_controls)
+        sizes = {"T": steps, "T+1": steps + 1, "T+2": steps + 2}
+        for name, (_, shape) in _ARRAYS.items():
+            expected = tuple(sizes.get(axis, axis) for axis in shape)
+            actual = getattr(self, name).shape
+            if len(actual) != len(expected) or any(e is not None and a != e for a, e in zip(actual, expected)):
+                pretty = tuple("n" if e is None else e for e in expected)
+                raise ValueError(f"{name} must have shape {pretty} for an episode of {steps} steps, got {actual}")
+        count = len(self.ranges)
+        if len(self.bearings) != count or len(self.ids) != count:
+            raise ValueError(
+                f"ranges, bearings and ids must have the same length, got {count}, {len(self.bearings)}, {len(self.ids)}"
+            )
+        offsets = self.offsets
+        if offsets[0] != 0 or offsets[-1] != count or np.any(np.diff(offsets) < 0):
+            raise ValueError(f"offsets must rise from 0 to len(ranges) = {count}, got {offsets}")
+
+    # -- access --------------------------------------------------------------
+    @property
+    def steps(self) -> int:
+        """Number of steps ``T``."""
+        return len(self.commanded_controls)
+
+    def measurements(self, t: int) -> tuple[FloatArray, FloatArray, IdArray]:
+        """``(ranges, bearings, ids)`` made at time ``t`` (0 = at the reset, ``t`` = after step ``t``).
+
+        Read-only views into the episode.
+        """
+        if isinstance(t, bool):
+            raise TypeError("t must be an int, got bool")
+        t = operator.index(t)
+        if not 0 <= t <= self.steps:
+            raise IndexError(f"t must lie in [0, {self.steps}], got {t}")
+        rows = slice(int(self.offsets[t]), int(self.offsets[t + 1]))
+        return self.ranges[rows], self.bearings[rows], self.ids[rows]
+
+    def models(self) -> tuple[VelocityMotionModel, RangeBearingSensor]:
+        """The motion model and the sensor, built from :attr:`config` as the env builds them."""
+        return episode_models(self.config)
+
+    # -- comparison ----------------------------------------------------------
+    def __eq__(self, other: object) -> bool:
+        if not isinstance(other, Episode):
+            return NotImplemented
+        if dict(self.config) != dict(other.config) or self.seed != other.seed or self.dt != other.dt:
+            return False
+        return all(_arrays_equal(getattr(self, name), getattr(other, name)) for name in _ARRAYS)
+
+    __hash__ = None  # type: ignore[assignment]
+
+    def __repr__(self) -> str:
+        return (
+            f"Episode(steps={self.steps}, landmarks={len(self.landmarks)}, measurements={len(self.ranges)}, "
+            f"filter={self.config.get('filter')!r}, seed={self.seed!r})"
+        )
+
+    # -- files ---------------------------------------------------------------
+    def save(self, path) -> Path:
+        """Write the episode to ``path`` (``np.savez_compressed``; ``.npz`` is appended if missing).
+
+        Returns the path written. The file holds plain arrays only (the
+        config and the seed as JSON strings), so :meth:`load` needs no pickle.
+        """
+        path = Path(path)
+        if path.suffix != ".npz":
+            path = path.with_name(path.name + ".npz")
+        np.savez_compressed(
+            path,
+            format_version=np.array(FORMAT_VERSION, dtype=np.int64),
+            config=np.array(_json_config(self.config)),
+            seed=np.array(json.dumps(self.seed)),
+            dt=np.array(self.dt, dtype=np.float64),
+            **{name: getattr(self, name) for name in _ARRAYS},
+        )
+        return path
+
+    @classmethod
+    def load(cls, path) -> Episode:
+        """Read an episode written by :meth:`save` (``allow_pickle=False``)."""
+        with np.load(Path(path), allow_pickle=False) as data:
+            missing = sorted({"format_version", "config", "seed", "dt", *_ARRAYS} - set(data.files))
+            if missing:
+                raise ValueError(f"{path} is not a saved Episode: missing {', '.join(missing)}")
+            version = int(data["format_version"])
+            if version != FORMAT_VERSION:
+                raise ValueError(f"{path} has episode format {version}; this version reads {FORMAT_VERSION}")
+            seed = json.loads(str(data["seed"]))
+            return cls(
+                config=_config_from_json(str(data["config"])),
+                seed=seed,
+                dt=float(data["dt"]),
+                **{name: data[name] for name in _ARRAYS},
+            )
+
+
+def episode_models(config: Mapping[str, Any]) -> tuple[VelocityMotionModel, RangeBearingSensor]:
+    """``(motion, sensor)`` from env keyword arguments, exactly as ``SeifExploreEnv`` builds them."""
+    motion = VelocityMotionModel(alphas=tuple(config["motion_noise"]))
+    sensor = RangeBearingSensor(
+        sigma_range=config["sigma_range"],
+        sigma_bearing=config["sigma_bearing"],
+        max_range=config["sensor_range"],
+        fov=config["fov"],
+    )
+    return motion, sensor
+
+
+# ---------------------------------------------------------------------------
+# Recording
+# ---------------------------------------------------------------------------
+class EpisodeRecorder(gym.Wrapper, gym.utils.RecordConstructorArgs):
+    """Record the episodes of a ``SeifExplore`` env as :class:`Episode` objects.
+
+    Wraps an env whose ``unwrapped`` is a
+    :class:`~seif_gym.envs.explore.SeifExploreEnv` (other wrappers, such as
+    ``gym.make``'s ``TimeLimit``, may sit in between). Everything is taken
+    from the infos of ``reset`` and ``step`` and from the unwrapped env's
+    configuration; observations, actions and rewards pass through unchanged.
+
+    Parameters
+    ----------
+    env : gymnasium.Env
+        The env to record.
+    directory : str or Path, optional
+        If given, every finished episode (terminated or truncated) is saved
+        there as ``episode_{k:05d}.npz``, ``k = 0, 1, ...`` counting the
+        finished episodes of this wrapper. Existing files of the same name
+        are overwritten. An episode cut short by a new ``reset`` is not
+        saved.
+
+    Attributes
+    ----------
+    episode : Episode
+        The current episode (up to the last step) or, after it ended, the
+        finished one.
+    episode_count : int
+        Finished episodes so far.
+    paths : list of Path
+        Files written so far.
+
+    Example
+    -------
+    >>> import gymnasium as gym
+    >>> import seif_gym
+    >>> from seif_gym.episodes import EpisodeRecorder
+    >>> env = EpisodeRecorder(gym.make("SeifExplore-v0", max_episode_steps=5))
+    >>> _ = env.reset(seed=0)
+    >>> _ = env.action_space.seed(0)
+    >>> done = False
+    >>> while not done:
+    ...     _, _, terminated, truncated, _ = env.step(env.action_space.sample())
+    ...     done = terminated or truncated
+    >>> env.episode.steps
+    5
+    >>> env.episode.true_poses.shape, env.episode.executed_controls.shape
+    ((6, 3), (5, 2))
+    >>> env.episode.seed, env.episode_count
+    (0, 1)
+    >>> ranges, bearings, ids = env.episode.measurements(0)   # the measurement made at reset
+    >>> env.close()
+    """
+
+    def __init__(self, env: gym.Env, directory=None) -> None:
+        gym.utils.RecordConstructorArgs.__init__(self, directory=None if directory is None else str(directory))
+        gym.Wrapper.__init__(self, env)
+        if not isinstance(env.unwrapped, SeifExploreEnv):
+            raise TypeError(f"EpisodeRecorder needs a SeifExploreEnv inside, got {type(env.unwrapped).__name__}")
+        self.directory: Path | None = None if directory is None else Path(directory)
+        if self.directory is not None:
+            self.directory.mkdir(parents=True, exist_ok=True)
+        self.episode_count = 0
+        self.paths: list[Path] = []
+        self._recording = False  # an episode is in progress
+        self._episode: Episode | None = None  # cache of the current / last episode
+        self._buffers: dict[str, Any] = {}
+
+    # -- gymnasium API ---------------------------------------------------------------
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
+        observation, info = self.env.reset(seed=seed, options=options)
+        base = self.env.unwrapped
+        self._buffers = {
+            "config": base.config,
+            "seed": seed,
+            "dt": base.robot_config.dt,
+            "landmarks": np.array(base.world.landmarks, dtype=np.float64),
+            "true_poses": [],
+            "estimated_poses": [],
+            "commanded_controls": [],
+            "executed_controls": [],
+            "measurements": [],
+            "rewards": [],
+            "map_errors": [],
+        }
+        self._record(info)
+        self._recording = True
+        self._episode = None
+        return observation, info
+
+    def step(self, action):
+        if not self._buffers:
+            raise RuntimeError("call reset() before step()")
+        if not self._recording:
+            raise RuntimeError("the recorded episode has ended; call reset() before step()")
+        observation, reward, terminated, truncated, info = self.env.step(action)
+        buffers = self._buffers
+        buffers["commanded_controls"].append(np.array(info["control"], dtype=np.float64))
+        buffers["executed_controls"].append(np.array(info["executed_control"], dtype=np.float64))
+        buffers["rewards"].append(float(reward))
+        self._record(info)
+        self._episode = None
+        if terminated or truncated:
+            self._recording = False
+            episode = self.episode
+            if self.directory is not None:
+                self.paths.append(episode.save(self.directory / f"episode_{self.episode_count:05d}.npz"))
+            self.episode_count += 1
+        return observation, reward, terminated, truncated, info
+
+    def _record(self, info: dict[str, Any]) -> None:
+        buffers = self._buffers
+        buffers["true_poses"].append(np.array(info["true_pose"], dtype=np.float64))
+        buffers["estimated_poses"].append(np.array(info["pose_estimate"], dtype=np.float64))
+        buffers["map_errors"].append(float(info["map_error"]))
+        measured = info["measurements"]
+        buffers["measurements"].append(
+            (
+                np.array(measured["ranges"], dtype=np.float64),
+                np.array(measured["bearings"], dtype=np.float64),
+                np.array(measured["ids"], dtype=np.int64),
+            )
+        )
+
+    # -- the record -----------------------------------------------------------------
+    @property
+    def episode(self) -> Episode:
+        """The current episode, or the last one if it has ended."""
+        if self._episode is None:
+            if not self._buffers:
+                raise RuntimeError("no episode recorded yet: call reset()")
+            self._episode = self._build()
+        return self._episode
+
+    def _build(self) -> Episode:
+        buffers = self._buffers
+        measurements = buffers["measurements"]
+        counts = [len(ranges) for ranges, _, _ in measurements]
+        return Episode(
+            config=buffers["config"],
+            seed=buffers["seed"],
+            dt=buffers["dt"],
+            landmarks=buffers["landmarks"],
+            true_poses=np.array(buffers["true_poses"]).reshape(-1, 3),
+            estimated_poses=np.array(buffers["estimated_poses"]).reshape(-1, 3),
+            commanded_controls=np.array(buffers["commanded_controls"]).reshape(-1, 2),
+            executed_controls=np.array(buffers["executed_controls"]).reshape(-1, 2),
+            ranges=np.concatenate([m[0] for m in measurements]),
+            bearings=np.concatenate([m[1] for m in measurements]),
+            ids=np.concatenate([m[2] for m in measurements]),
+            offsets=np.concatenate([[0], np.cumsum(counts)]),
+            rewards=np.array(buffers["rewards"], dtype=np.float64),
+            map_errors=np.array(buffers["map_errors"], dtype=np.float64),
+        )
+
+
+# ---------------------------------------------------------------------------
+# Replay
+# ---------------------------------------------------------------------------
+@dataclass(frozen=True, eq=False)
+class ReplayResult:
+    """What a filter made of an episode (:func:`replay`).
+
+    Attributes
+    ----------
+    poses : ndarray (T + 1, 3)
+        Estimated pose after the first measurement and after each step.
+    landmark_ids : ndarray (k,)
+        Ids of the final map, in the filter's state order.
+    landmarks : ndarray (k, 2)
+        The final map estimate.
+    map_errors : ndarray (T + 1,)
+        The env's map error ``E_t`` of the estimate, computed as
+        ``SeifExploreEnv.map_error`` does.
+    step_seconds : ndarray (T,)
+        Wall time of each ``predict`` + ``update``.
+    filter : SlamFilter
+        The filter, in its final state.
+    """
+
+    poses: FloatArray
+    landmark_ids: IdArray
+    landmarks: FloatArray
+    map_errors: FloatArray
+    step_seconds: FloatArray
+    filter: Any
+
+    def __post_init__(self) -> None:
+        for item in fields(self):
+            if item.name != "filter":
+                array = np.array(getattr(self, item.name), copy=True)
+                array.setflags(write=False)
+                object.__setattr__(self, item.name, array)
+
+
+def _map_error(filt, landmarks: FloatArray, d_cap) -> float:
+    """``SeifExploreEnv.map_error`` of ``filt``'s map: the env's own function, so the same bits."""
+    estimates = np.ascontiguousarray(filt.landmarks, dtype=np.float64).reshape(-1, 2)
+    ids = np.ascontiguousarray(filt.landmark_ids, dtype=np.int64).reshape(-1)
+    return float(_env_map_error(estimates, landmarks, ids, d_cap))
+
+
+def _default_options(factory, config: Mapping[str, Any], options: dict[str, Any]) -> dict[str, Any]:
+    """Add the env's filter options (``max_active``) where the filter takes them and the caller gave none."""
+    accepted = getattr(factory, "OPTIONS", None) if isinstance(factory, type) and issubclass(factory, SlamFilter) else None
+    if accepted is not None and "max_active" in accepted and "max_active" not in options and "max_active" in config:
+        return {**options, "max_active": config["max_active"]}
+    return options
+
+
+def replay(
+    episode: Episode,
+    filter: str = "seif",
+    *,
+    filter_factory: Callable[..., Any] | None = None,
+    callback: Callable[[int, Any], None] | None = None,
+    **options: Any,
+) -> ReplayResult:
+    """Run ``episode``'s controls and measurements through a filter.
+
+    The motion model and the sensor are rebuilt from ``episode.config`` as
+    the env builds them; the filter starts at the true start pose, processes
+    the measurement made at the reset, then per step ``predict(executed
+    control, dt)`` and ``update(ranges, bearings, ids)``, exactly the calls
+    of the env. Replaying with the env's filter and options therefore
+    reproduces ``episode.estimated_poses`` and ``episode.map_errors``.
+
+    Parameters
+    ----------
+    episode : Episode
+    filter : str, default "seif"
+        A name of :data:`seif_gym.slam.FILTERS`.
+    filter_factory : callable, optional
+        Instead of ``filter``: ``filter_factory(motion, sensor, initial_pose,
+        **options)`` returns the filter to run, any object with the
+        :class:`~seif_gym.slam.SlamFilter` methods ``predict``, ``update``
+        and the properties ``pose``, ``landmark_ids``, ``landmarks`` (a
+        ``SlamFilter`` subclass itself works).
+    callback : callable, optional
+        ``callback(t, filter)`` after the measurement of time ``t``
+        (``t = 0`` after the first one, ``t = T`` after the last step), e.g.
+        to read covariances.
+    **options
+        Filter options. If the filter takes ``max_active`` (the SEIF) and
+        none is given, the episode's ``config["max_active"]`` is used, as the
+        env does.
+
+    Returns
+    -------
+    ReplayResult
+    """
+    if not isinstance(episode, Episode):
+        raise TypeError(f"episode must be an Episode, got {type(episode).__name__}")
+    if filter_factory is None:
+        if not isinstance(filter, str) or filter not in FILTERS:
+            raise ValueError(f"filter must be one of {tuple(FILTERS)}, got {filter!r}")
+        factory = FILTERS[filter]
+    else:
+        if filter != "seif":
+            raise TypeError("pass either filter or filter_factory, not both")
+        if not callable(filter_factory):
+            raise TypeError(f"filter_factory must be callable, got {type(filter_factory).__name__}")
+        factory = filter_factory
+    if callback is not None and not callable(callback):
+        raise TypeError(f"callback must be callable, got {type(callback).__name__}")
+    config = episode.config
+    options = _default_options(factory, config, options)
+    motion, sensor = episode_models(config)
+    filt = factory(motion, sensor, episode.true_poses[0].copy(), **options)
+
+    steps, dt = episode.steps, episode.dt
+    d_cap = config["d_cap"]
+    poses = np.empty((steps + 1, 3))
+    map_errors = np.empty(steps + 1)
+    seconds = np.empty(steps)
+
+    def measurement(t: int):
+        return tuple(np.array(part) for part in episode.measurements(t))  # writable copies, like the env's
+
+    filt.update(*measurement(0))
+    poses[0] = filt.pose
+    map_errors[0] = _map_error(filt, episode.landmarks, d_cap)
+    if callback is not None:
+        callback(0, filt)
+    for t in range(steps):
+        control = np.array(episode.executed_controls[t])
+        ranges, bearings, ids = measurement(t + 1)
+        started = time.perf_counter()
+        filt.predict(control, dt)
+        filt.update(ranges, bearings, ids)
+        seconds[t] = time.perf_counter() - started
+        poses[t + 1] = filt.pose
+        map_errors[t + 1] = _map_error(filt, episode.landmarks, d_cap)
+        if callback is not None:
+            callback(t + 1, filt)
+    return ReplayResult(
+        poses=poses,
+        landmark_ids=np.asarray(filt.landmark_ids),
+        landmarks=np.asarray(filt.landmarks),
+        map_errors=map_errors,
+        step_seconds=seconds,
+        filter=filt,
+    )

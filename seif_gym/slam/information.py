@@ -208,26 +208,40 @@ class InformationStore:
 
     # -- export ----------------------------------------------------------------
     def to_sparse(self) -> scipy.sparse.csr_array:
-        """``Omega`` as a ``scipy.sparse.csr_array`` in state order (O(nnz))."""
+        """``Omega`` as a ``scipy.sparse.csr_array`` in state order (O(nnz), vectorised)."""
         n = self.num_landmarks
+        size = self.state_dim
+        two = np.arange(2)
         rows, cols, vals = [], [], []
 
-        def put(r0: int, c0: int, block: FloatArray) -> None:
-            r, c = np.nonzero(block)
-            rows.append(r + r0)
-            cols.append(c + c0)
-            vals.append(block[r, c])
+        def add(r: np.ndarray, c: np.ndarray, v: np.ndarray) -> None:
+            keep = v != 0.0
+            rows.append(r[keep])
+            cols.append(c[keep])
+            vals.append(v[keep])
 
-        put(0, 0, self.robot_info)
-        for i in range(n):
-            o = 3 + 2 * i
-            put(0, o, self.robot_links[i])
-            put(o, 0, self.robot_links[i].T)
-            put(o, o, self.landmark_info[i])
-            for slot in range(self.neighbour_count[i]):
-                j = int(self.neighbour_index[i, slot])
-                put(o, 3 + 2 * j, self.neighbour_info[i, slot])
-        size = self.state_dim
+        # robot block
+        add(np.repeat(np.arange(3), 3), np.tile(np.arange(3), 3), self.robot_info.ravel())
+        if n:
+            offsets = 3 + 2 * np.arange(n)
+            # robot-landmark links (3 x 2 per landmark) and their transposes
+            link_rows = np.broadcast_to(np.arange(3)[None, :, None], (n, 3, 2))
+            link_cols = np.broadcast_to(offsets[:, None, None] + two[None, None, :], (n, 3, 2))
+            links = self.robot_links[:n]
+            add(link_rows.ravel(), link_cols.ravel(), links.ravel())
+            add(link_cols.ravel(), link_rows.ravel(), links.ravel())
+            # landmark diagonal blocks
+            diag_rows = np.broadcast_to(offsets[:, None, None] + two[None, :, None], (n, 2, 2))
+            diag_cols = np.broadcast_to(offsets[:, None, None] + two[None, None, :], (n, 2, 2))
+            add(diag_rows.ravel(), diag_cols.ravel(), self.landmark_info[:n].ravel())
+            # landmark-landmark links
+            counts = self.neighbour_count[:n]
+            owner, slot = np.nonzero(np.arange(self.degree)[None, :] < counts[:, None])
+            other = self.neighbour_index[owner, slot]
+            r = 3 + 2 * owner[:, None, None] + two[None, :, None]
+            c = 3 + 2 * other[:, None, None] + two[None, None, :]
+            add(np.broadcast_to(r, (len(owner), 2, 2)).ravel(), np.broadcast_to(c, (len(owner), 2, 2)).ravel(),
+                self.neighbour_info[owner, slot].ravel())  # fmt: skip
         matrix = scipy.sparse.coo_array(
             (np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(size, size)
         )

@@ -35,12 +35,15 @@ and field of view) to convert the normalised observation into metres.
 
 Observation geometry (see ``seif_gym.observation``): ``obs["pose"]`` is
 ``(x/h, y/h, cos θ, sin θ, σx/s, σy/s, σθ/π)`` with ``h`` half the arena side;
-``obs["landmarks"]`` rows are ``(forward, left)`` in the robot frame divided by
-the arena diagonal ``2√2·h``, then the 95 % ellipse semi-axes divided by ``s``;
-``obs["belief_map"]`` is a heading-up raster of ``±map_extent`` metres, row 0
-ahead and column 0 to the left, channels (swept, landmark certainty, outside
-the arena). Cell ``(i, j)`` has its centre ``forward = e − (i + ½)·c``,
-``left = e − (j + ½)·c`` metres from the robot (``c = 2e/H``).
+``obs["landmarks"]`` is flat, ``(4K,)``: :func:`landmark_rows` reshapes it to
+``K`` rows ``(forward, left)`` in the robot frame divided by the arena diagonal
+``2√2·h``, then the 95 % ellipse semi-axes divided by ``s``;
+``obs["belief_map"]`` is a ``uint8`` heading-up raster (``0..255``) of
+``±map_extent`` metres, row 0 ahead and column 0 to the left, channels
+(swept, landmark certainty, outside the arena), which :func:`read_belief_map`
+reads as floats in ``[0, 1]``. Cell ``(i, j)`` has its centre
+``forward = e − (i + ½)·c``, ``left = e − (j + ½)·c`` metres from the robot
+(``c = 2e/H``).
 
 >>> import gymnasium as gym
 >>> import seif_gym
@@ -74,6 +77,8 @@ __all__ = [
     "RevisitAgent",
     "InfoGainAgent",
     "Geometry",
+    "read_belief_map",
+    "landmark_rows",
     "BASELINES",
     "make_agent",
 ]
@@ -157,6 +162,36 @@ def _unwrapped(env: Any | None) -> Any | None:
     if env is None:
         return None
     return getattr(env, "unwrapped", env)
+
+
+def read_belief_map(observation: Observation | np.ndarray) -> FloatArray:
+    """``obs["belief_map"]`` as ``float64`` in ``[0, 1]``.
+
+    The env's map is ``uint8`` in ``[0, 255]`` (divided by 255 here); a float
+    map (already in ``[0, 1]``, the format before ``uint8``) is only converted
+    to ``float64``. Accepts the observation dict or the map itself, single
+    ``(3, H, H)`` or batched ``(n_envs, 3, H, H)``.
+    """
+    raw = np.asarray(observation["belief_map"] if isinstance(observation, Mapping) else observation)
+    belief = np.asarray(raw, dtype=np.float64)
+    if raw.dtype == np.uint8:
+        belief /= 255.0
+    return belief
+
+
+def landmark_rows(landmarks: Observation | np.ndarray, batched: bool = False) -> FloatArray:
+    """``obs["landmarks"]`` as ``float64`` rows ``(forward, left, major, minor)``.
+
+    The env's entry is flat, ``(4K,)`` -> ``(K, 4)``; with ``batched=True``
+    (a leading ``n_envs`` axis, as a ``VecEnv`` returns) ``(n_envs, 4K)`` ->
+    ``(n_envs, K, 4)``. Already-shaped rows (``(K, 4)`` / ``(n_envs, K, 4)``)
+    come back unchanged. Accepts the observation dict or the entry itself.
+    """
+    raw = landmarks["landmarks"] if isinstance(landmarks, Mapping) else landmarks
+    rows = np.asarray(raw, dtype=np.float64)
+    if batched:
+        return rows.reshape(rows.shape[0], -1, 4)
+    return rows.reshape(-1, 4)
 
 
 def _heading(pose: np.ndarray) -> float:
@@ -342,7 +377,8 @@ class FrontierAgent(Agent):
 
     Each step:
 
-    1. Candidate cells of ``obs["belief_map"]`` are those *unswept*
+    1. Candidate cells of ``obs["belief_map"]`` (read as floats in
+       ``[0, 1]`` by :func:`read_belief_map`) are those *unswept*
        (channel 0 < ½) and *inside the arena* (channel 2 < ½).
     2. Each candidate scores ``density / (1 + cost / cost_scale)``:
        ``density`` is the fraction of candidates in its ``window × window``
@@ -466,7 +502,7 @@ class FrontierAgent(Agent):
 
     def frontier_target(self, observation: Observation) -> tuple[float, float] | None:
         """``(forward, left)`` metres of the chosen unswept cell, or ``None`` if there is none."""
-        belief = np.asarray(observation["belief_map"], dtype=np.float64)
+        belief = read_belief_map(observation)
         raster = self.raster(belief.shape[1])
         candidate = (belief[0] < 0.5) & (belief[2] < 0.5)
         if not candidate.any():
@@ -493,7 +529,7 @@ class FrontierAgent(Agent):
 
     def wall_clearance(self, observation: Observation) -> float:
         """Distance ahead to the nearest outside-arena cell in the corridor, metres (``inf`` if none)."""
-        belief = np.asarray(observation["belief_map"])
+        belief = read_belief_map(observation)
         raster = self.raster(belief.shape[1])
         blocked = (belief[2] >= 0.5) & (raster.forward > 0.0) & (np.abs(raster.left) <= self.corridor + 0.5 * raster.cell)
         if not blocked.any():
@@ -540,7 +576,7 @@ class RevisitAgent(FrontierAgent):
     ``hypot(σx, σy)`` (from ``obs["pose"]``) exceeds ``pose_std_threshold``
     metres, or ``period`` steps after the last revisit, but not within
     ``cooldown`` steps of the last one. Its target is the landmark with the
-    largest 95 % ellipse (``obs["landmarks"][:, 2]``) among the ``K`` listed
+    largest 95 % ellipse (``landmark_rows(obs)[:, 2]``) among the ``K`` listed
     (``target="least_uncertain"``: the smallest, an old well-mapped
     landmark that anchors the pose, a classic loop closure): its position is fixed in the arena frame at that moment (from the
     normalised offsets), and the robot drives to it until it is within
@@ -607,7 +643,7 @@ class RevisitAgent(FrontierAgent):
         mask = np.asarray(observation["landmarks_mask"]) > 0.5
         if not mask.any():
             return None
-        rows = np.asarray(observation["landmarks"], dtype=np.float64)
+        rows = landmark_rows(observation)
         if self.target == "most_uncertain":
             row = rows[int(np.argmax(np.where(mask, rows[:, 2], -np.inf)))]
         else:
@@ -793,7 +829,7 @@ class InfoGainAgent(FrontierAgent):
 
     def _swept_area(self, observation: Observation, poses: FloatArray, start: FloatArray) -> float:
         """Area (m²) of unswept in-arena cells of the belief map the sensor sweeps from ``poses``."""
-        belief = np.asarray(observation["belief_map"])
+        belief = read_belief_map(observation)
         raster = self.raster(belief.shape[1])
         candidate = (belief[0] < 0.5) & (belief[2] < 0.5)
         if not candidate.any():

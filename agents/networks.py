@@ -11,8 +11,9 @@ from torch import nn
 class BeliefExtractor(BaseFeaturesExtractor):
     """A small CNN for ``belief_map`` and an MLP for the vector entries.
 
-    The belief map is an egocentric raster (``C x H x W`` floats in [0, 1]);
-    two strided convolutions keep its geometry (where the unswept area and
+    The belief map is an egocentric raster (``C x H x W``; ``uint8`` in the
+    env, which SB3's preprocessing, ``normalize_images=True``, hands over as
+    floats in [0, 1]); two strided convolutions keep its geometry (where the unswept area and
     the walls are relative to the heading), which a flattening MLP would
     have to learn from scratch. ``pose``, ``landmarks`` and
     ``landmarks_mask`` are flattened and concatenated.

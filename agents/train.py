@@ -59,7 +59,7 @@ class TrainConfig:
     eval_freq: int = 50_000
     eval_episodes: int = 10
     checkpoint_freq: int = 250_000
-    vec_env: str = "subproc"
+    vec_env: str = "dummy"
     progress_bar: bool = True
 
 
@@ -134,8 +134,10 @@ def train(config: TrainConfig):
     out = config.out
     out.mkdir(parents=True, exist_ok=True)
     vec_cls = SubprocVecEnv if config.vec_env == "subproc" and config.n_envs > 1 else DummyVecEnv
-    env = make_vec_env(config.env_id, n_envs=config.n_envs, seed=config.seed, vec_env_cls=vec_cls, env_kwargs=config.env_kwargs)
-    eval_env = make_vec_env(config.env_id, n_envs=1, seed=config.seed + 10_000, env_kwargs=config.env_kwargs)
+    # "seif_gym:<id>" makes worker processes (forkserver/spawn) import seif_gym, which registers the id
+    env_id = config.env_id if ":" in config.env_id else f"seif_gym:{config.env_id}"
+    env = make_vec_env(env_id, n_envs=config.n_envs, seed=config.seed, vec_env_cls=vec_cls, env_kwargs=config.env_kwargs)
+    eval_env = make_vec_env(env_id, n_envs=1, seed=config.seed + 10_000, env_kwargs=config.env_kwargs)
     if config.normalize:
         env = VecNormalize(env, **config.normalize)
         eval_env = VecNormalize(eval_env, training=False, norm_reward=False, **{k: v for k, v in config.normalize.items() if k != "norm_reward"})
@@ -204,7 +206,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--out", required=True, help="output directory")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--n-envs", type=int, default=None)
-    parser.add_argument("--vec-env", choices=("subproc", "dummy"), default="subproc")
+    parser.add_argument("--vec-env", choices=("subproc", "dummy"), default="dummy",
+                        help="dummy: all envs in this process (best on 2 cores: the env is fast, the update dominates)")
     parser.add_argument("--hyperparams", nargs="*", type=_parse_override, help="overrides, e.g. learning_rate=1e-4")
     parser.add_argument("--eval-freq", type=int, default=50_000)
     parser.add_argument("--eval-episodes", type=int, default=10)
@@ -215,7 +218,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> None:
     args = build_parser().parse_args(argv)
-    if args.env not in gym.registry:
+    if args.env.split(":")[-1] not in gym.registry:
         raise SystemExit(f"unknown env {args.env!r}")
     train(resolve_config(args))
 

@@ -424,9 +424,9 @@ class EpisodeRecorder(gym.Wrapper, gym.utils.RecordConstructorArgs):
         measured = info["measurements"]
         buffers["measurements"].append(
             (
-                np.array(measured["ranges"], dtype=np.float64),
-                np.array(measured["bearings"], dtype=np.float64),
-                np.array(measured["ids"], dtype=np.int64),
+                np.array(measured.ranges, dtype=np.float64),
+                np.array(measured.bearings, dtype=np.float64),
+                np.array(measured.ids, dtype=np.int64),
             )
         )
 

@@ -43,7 +43,8 @@ class ObservationConfig:
     nearest_landmarks : int
         ``K``, the number of mapped landmarks listed in ``obs["landmarks"]``.
     map_size : int
-        Side ``H = W`` of the egocentric ``belief_map`` raster, cells.
+        Side ``H = W`` of the egocentric ``belief_map`` raster, cells (at
+        least 36 for stable-baselines3's image checks).
     map_extent : float
         Half-width of the raster, metres (the raster covers
         ``[-e, e]^2`` around the estimated pose, heading up).
@@ -54,7 +55,7 @@ class ObservationConfig:
     """
 
     nearest_landmarks: int = 8
-    map_size: int = 32
+    map_size: int = 40
     map_extent: float = 8.0
     coverage_resolution: float = 0.5
     std_scale: float = 1.0
@@ -94,8 +95,8 @@ def _sweep(coverage, resolution, half_arena, x, y, theta, max_range, half_fov):
 
 @njit(cache=True)
 def _belief_map(coverage, resolution, half_arena, x, y, theta, size, extent, landmarks, confidence):
-    """The (3, size, size) egocentric raster; row 0 is ahead, column 0 is left."""
-    out = np.zeros((3, size, size), dtype=np.float32)
+    """The (3, size, size) uint8 egocentric raster (0..255); row 0 is ahead, column 0 is left."""
+    out = np.zeros((3, size, size), dtype=np.uint8)
     cells = coverage.shape[0]
     c, s = np.cos(theta), np.sin(theta)
     step = 2.0 * extent / size
@@ -106,11 +107,11 @@ def _belief_map(coverage, resolution, half_arena, x, y, theta, size, extent, lan
             wx = x + c * forward - s * left
             wy = y + s * forward + c * left
             if wx < -half_arena or wx > half_arena or wy < -half_arena or wy > half_arena:
-                out[2, i, j] = 1.0
+                out[2, i, j] = 255
                 continue
             gi = min(int((wx + half_arena) / resolution), cells - 1)
             gj = min(int((wy + half_arena) / resolution), cells - 1)
-            out[0, i, j] = coverage[gi, gj]
+            out[0, i, j] = 255 * coverage[gi, gj]
     for k in range(landmarks.shape[0]):
         dx = landmarks[k, 0] - x
         dy = landmarks[k, 1] - y
@@ -119,8 +120,9 @@ def _belief_map(coverage, resolution, half_arena, x, y, theta, size, extent, lan
         i = int((extent - forward) / step)
         j = int((extent - left) / step)
         if 0 <= i < size and 0 <= j < size and forward <= extent and left <= extent:
-            if confidence[k] > out[1, i, j]:
-                out[1, i, j] = confidence[k]
+            value = np.uint8(min(max(round(255.0 * confidence[k]), 1.0), 255.0))
+            if value > out[1, i, j]:
+                out[1, i, j] = value
     return out
 
 
@@ -154,7 +156,7 @@ def _nearest(x, y, landmarks, k):
 
 @njit(cache=True)
 def _landmark_features(x, y, theta, landmarks, nearest, covs, k, diagonal, std_scale, chi2):
-    """Rows ``(forward, left, major, minor)`` of ``obs["landmarks"]`` and the mask."""
+    """``obs["landmarks"]`` (``k`` rows ``(forward, left, major, minor)``, flattened) and the mask."""
     features = np.zeros((k, 4), dtype=np.float32)
     mask = np.zeros(k, dtype=np.float32)
     c, s = np.cos(theta), np.sin(theta)
@@ -171,7 +173,7 @@ def _landmark_features(x, y, theta, landmarks, nearest, covs, k, diagonal, std_s
         features[row, 2] = min(np.sqrt(chi2 * max(mid + radius, 0.0)) / std_scale, 1.0)
         features[row, 3] = min(np.sqrt(chi2 * max(mid - radius, 0.0)) / std_scale, 1.0)
         mask[row] = 1.0
-    return features, mask
+    return features.reshape(k * 4), mask
 
 
 class BeliefEncoder:
@@ -197,9 +199,11 @@ class BeliefEncoder:
         self.observation_space = spaces.Dict(
             {
                 "pose": spaces.Box(-1.0, 1.0, (len(POSE_FEATURES),), np.float32),
-                "landmarks": spaces.Box(-1.0, 1.0, (k, len(LANDMARK_FEATURES)), np.float32),
+                # flat (K * 4,): stable-baselines3 expects 1-D vectors
+                "landmarks": spaces.Box(-1.0, 1.0, (k * len(LANDMARK_FEATURES),), np.float32),
                 "landmarks_mask": spaces.Box(0.0, 1.0, (k,), np.float32),
-                "belief_map": spaces.Box(0.0, 1.0, (len(MAP_CHANNELS), size, size), np.float32),
+                # uint8 channel-first image, as stable-baselines3 expects of an image
+                "belief_map": spaces.Box(0, 255, (len(MAP_CHANNELS), size, size), np.uint8),
             }
         )
 

@@ -25,7 +25,7 @@ os.environ.setdefault("MPLBACKEND", "Agg")
 import seif_gym  # noqa: E402  (registers the environments)
 from agents import BASELINES, Agent, make_agent  # noqa: E402
 from agents import evaluate  # noqa: E402
-from agents.baselines import INFO_GAIN_READS  # noqa: E402
+from agents.baselines import INFO_GAIN_READS, landmark_rows, read_belief_map  # noqa: E402
 
 OBS_ONLY = tuple(name for name in BASELINES if name != "info_gain")
 #: Configuration the observation-only agents may read (to turn the observation into metres).
@@ -196,6 +196,10 @@ def test_predict_on_a_vec_env() -> None:
     venv.seed(5)
     agents = [make_agent(name, venv, **agent_kwargs(name)) for name in BASELINES]
     obs = venv.reset()
+    k = venv.envs[0].unwrapped.observation_config.nearest_landmarks
+    assert obs["landmarks"].shape == (2, 4 * k) and obs["belief_map"].dtype == np.uint8
+    assert landmark_rows(obs, batched=True).shape == (2, k, 4)
+    assert read_belief_map(obs).shape == obs["belief_map"].shape
     starts = np.ones(2, dtype=bool)
     for _ in range(12):  # across an episode boundary
         for agent in agents[:-1]:
@@ -208,6 +212,88 @@ def test_predict_on_a_vec_env() -> None:
         make_agent("info_gain", venv.envs[0]).predict(obs)
     with pytest.raises(TypeError):
         agents[0].predict(np.zeros(7))
+
+
+# -- the observation format -----------------------------------------------------------------------
+def test_read_belief_map_scales_uint8_to_unit_floats() -> None:
+    env = gym.make("SeifExplore-v0", max_episode_steps=5)
+    obs, _ = env.reset(seed=0)
+    raw = obs["belief_map"]
+    assert raw.dtype == np.uint8 and raw.shape == (3, 40, 40)
+    belief = read_belief_map(obs)
+    assert belief.dtype == np.float64 and belief.shape == raw.shape
+    np.testing.assert_array_equal(belief, raw.astype(np.float64) / 255.0)
+    assert belief.min() >= 0.0 and belief.max() == 1.0
+    np.testing.assert_array_equal(read_belief_map(raw), belief)  # the array itself works too
+    # a float map (already in [0, 1]) is not scaled again
+    np.testing.assert_array_equal(read_belief_map(belief.astype(np.float32)), belief.astype(np.float32))
+    # batched
+    batch = np.stack([raw, raw])
+    np.testing.assert_array_equal(read_belief_map({"belief_map": batch}), np.stack([belief, belief]))
+    assert raw.dtype == np.uint8 and raw.max() == 255  # the observation is left alone
+
+
+def test_landmark_rows_reshapes_single_and_batched() -> None:
+    env = gym.make("SeifExplore-v0", max_episode_steps=5, nearest_landmarks=5)
+    obs, _ = env.reset(seed=0)
+    assert obs["landmarks"].shape == (20,)
+    rows = landmark_rows(obs)
+    assert rows.shape == (5, 4) and rows.dtype == np.float64
+    np.testing.assert_array_equal(rows[2], obs["landmarks"][8:12])
+    np.testing.assert_array_equal(landmark_rows(rows), rows)  # already rows: unchanged
+    batch = np.stack([obs["landmarks"], 2 * obs["landmarks"], 3 * obs["landmarks"]])
+    batched = landmark_rows(batch, batched=True)
+    assert batched.shape == (3, 5, 4)
+    for k in range(3):
+        np.testing.assert_array_equal(batched[k], landmark_rows(batch[k]))
+    assert landmark_rows({"landmarks": batch}, batched=True).shape == (3, 5, 4)
+
+
+def _old_format(obs: dict) -> dict:
+    """The observation in the format before the uint8 map and flat landmarks: float32 [0, 1], (K, 4)."""
+    old = dict(obs)
+    old["belief_map"] = (obs["belief_map"].astype(np.float64) / 255.0).astype(np.float32)
+    old["landmarks"] = obs["landmarks"].reshape(-1, 4)
+    return old
+
+
+@pytest.mark.parametrize("name", ["frontier", "revisit"])
+def test_observation_agents_act_the_same_on_the_old_and_new_formats(name: str) -> None:
+    """The uint8 map and the flat landmarks change nothing of the decisions."""
+    env = gym.make("SeifExplore-v0", max_episode_steps=60)
+    kwargs = {"period": 10, "cooldown": 5} if name == "revisit" else {}
+    new_agent, old_agent = make_agent(name, None, **kwargs), make_agent(name, None, **kwargs)
+    obs, _ = env.reset(seed=5)
+    start = True
+    for _ in range(60):
+        action, _ = new_agent.predict(obs, episode_start=start)
+        old_action, _ = old_agent.predict(_old_format(obs), episode_start=start)
+        np.testing.assert_array_equal(action, old_action)
+        obs, _, terminated, truncated, _ = env.step(action)
+        start = False
+        if terminated or truncated:
+            break
+    if name == "revisit":
+        assert new_agent._state(0).revisits > 0, "test setup: the landmark rows should have been used"
+
+
+def test_revisit_targets_the_listed_landmark_from_the_flat_rows() -> None:
+    """``revisit`` reads the (4K,) landmarks as K rows: its target is the most uncertain listed landmark."""
+    env = gym.make("SeifExplore-v0", max_episode_steps=50)
+    agent = make_agent("revisit", None, period=1, cooldown=0)
+    obs, _ = env.reset(seed=1)
+    for _ in range(5):
+        obs = env.step(np.array([0.6, 0.4], dtype=np.float32))[0]
+    mask = obs["landmarks_mask"] > 0.5
+    assert mask.sum() >= 2, "test setup: several listed landmarks"
+    rows = obs["landmarks"].reshape(-1, 4).astype(np.float64)
+    best = rows[int(np.argmax(np.where(mask, rows[:, 2], -np.inf)))]
+    target = agent._choose_target(obs)
+    pose = obs["pose"].astype(np.float64)
+    theta = np.arctan2(pose[3], pose[2])
+    c, s = np.cos(theta), np.sin(theta)
+    forward, left = best[:2] * 2.0 * np.sqrt(2.0)
+    np.testing.assert_allclose(target, [pose[0] + c * forward - s * left, pose[1] + s * forward + c * left])
 
 
 # -- random ---------------------------------------------------------------------------------------
@@ -263,11 +349,44 @@ def test_evaluation_writes_the_documented_schema(tmp_path) -> None:
     assert data["agents"]["frontier"]["final_map_error"]["mean"] == pytest.approx(np.mean(frontier))
 
 
+def test_belief_extractor_gets_the_uint8_map_as_unit_floats() -> None:
+    """SB3 treats the uint8 belief map as an image: scaled to [0, 1] before ``BeliefExtractor``."""
+    import torch
+    from stable_baselines3 import PPO
+    from stable_baselines3.common.preprocessing import is_image_space, preprocess_obs
+    from stable_baselines3.common.vec_env import DummyVecEnv
+
+    from agents.networks import BeliefExtractor
+
+    venv = DummyVecEnv([lambda: gym.make("SeifExplore-v0", max_episode_steps=10) for _ in range(2)])
+    assert is_image_space(venv.observation_space["belief_map"])
+    model = PPO("MultiInputPolicy", venv, n_steps=8, batch_size=16, n_epochs=1, device="cpu", seed=0,
+                policy_kwargs={"features_extractor_class": BeliefExtractor})  # fmt: skip
+    model.learn(16)
+    obs = venv.reset()
+    tensors = preprocess_obs({key: torch.as_tensor(value) for key, value in obs.items()}, venv.observation_space)
+    belief = tensors["belief_map"]
+    assert belief.dtype == torch.float32 and float(belief.min()) >= 0.0 and float(belief.max()) == 1.0
+    torch.testing.assert_close(belief, torch.as_tensor(obs["belief_map"], dtype=torch.float32) / 255.0)
+    features = model.policy.features_extractor(tensors)
+    k = venv.envs[0].unwrapped.observation_config.nearest_landmarks
+    assert features.shape == (2, 128 + 7 + 4 * k + k)
+    actions, _ = model.predict(obs)
+    assert actions.shape == (2, 2)
+
+
 def test_cli_with_an_sb3_model_and_vecnormalize(tmp_path, capsys) -> None:
     from stable_baselines3 import PPO
     from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
 
-    venv = VecNormalize(DummyVecEnv([lambda: gym.make("SeifExplore-v0", max_episode_steps=10)]), norm_reward=False)
+    # the uint8 belief map is an image (SB3's policy scales it by 1/255 itself): normalise the vectors only.
+    # (VecNormalize would otherwise replace the image's space by a float32 box *in place*, i.e. in the env's own
+    # Dict space, and the env's passive checker would warn that its uint8 observations leave that space.)
+    venv = VecNormalize(
+        DummyVecEnv([lambda: gym.make("SeifExplore-v0", max_episode_steps=10)]),
+        norm_reward=False, norm_obs_keys=["pose", "landmarks", "landmarks_mask"],
+    )  # fmt: skip
+    assert venv.observation_space["belief_map"].dtype == np.uint8
     model = PPO("MultiInputPolicy", venv, n_steps=8, batch_size=8, n_epochs=1, device="cpu", seed=0)
     model.learn(8)
     (tmp_path / "model").mkdir()

@@ -82,9 +82,9 @@ def test_episode_matches_the_env_infos_at_every_step(case):
     for t, info in enumerate(infos):
         ranges, bearings, ids = episode.measurements(t)
         measured = info["measurements"]
-        np.testing.assert_array_equal(ranges, measured["ranges"])
-        np.testing.assert_array_equal(bearings, measured["bearings"])
-        np.testing.assert_array_equal(ids, measured["ids"])
+        np.testing.assert_array_equal(ranges, measured.ranges)
+        np.testing.assert_array_equal(bearings, measured.bearings)
+        np.testing.assert_array_equal(ids, measured.ids)
         assert ranges.dtype == np.float64 and bearings.dtype == np.float64 and ids.dtype == np.int64
         np.testing.assert_array_equal(episode.true_poses[t], info["true_pose"])
         np.testing.assert_array_equal(episode.estimated_poses[t], info["pose_estimate"])
@@ -94,7 +94,7 @@ def test_episode_matches_the_env_infos_at_every_step(case):
             np.testing.assert_array_equal(episode.executed_controls[t - 1], info["executed_control"])
     np.testing.assert_array_equal(episode.rewards, rec.rewards)
     # every measurement is stored once (steps that saw nothing are empty slices)
-    assert len(episode.ranges) == sum(len(info["measurements"]["ranges"]) for info in infos) > 0
+    assert len(episode.ranges) == sum(len(info["measurements"].ranges) for info in infos) > 0
     with pytest.raises(IndexError):
         episode.measurements(STEPS + 1)
     with pytest.raises(IndexError):

@@ -6,7 +6,7 @@ import inspect
 import math
 import time
 from dataclasses import asdict, dataclass
-from typing import Any
+from typing import Any, NamedTuple
 
 import gymnasium as gym
 import numpy as np
@@ -20,11 +20,28 @@ from seif_gym.slam import FILTERS, RangeBearingSensor, SlamFilter, VelocityMotio
 from seif_gym.slam.models import wrap_angle
 from seif_gym.world import LAYOUTS, World, WorldConfig, make_landmarks
 
-__all__ = ["SeifExploreEnv", "RewardConfig", "RobotConfig", "SensorConfig", "FilterConfig", "map_error"]
+__all__ = ["Measurements", "SeifExploreEnv", "RewardConfig", "RobotConfig", "SensorConfig", "FilterConfig", "map_error"]
 
 FloatArray = NDArray[np.float64]
 
 REWARDS = ("map_error", "information_gain")
+
+
+def _check_positive(name: str, value: Any, allow_zero: bool = False) -> None:
+    """Raise ``TypeError``/``ValueError`` naming ``name`` unless ``value`` is a finite positive number."""
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
+        raise TypeError(f"{name} must be a number, got {type(value).__name__}")
+    if not math.isfinite(value) or value < 0 or (value == 0 and not allow_zero):
+        kind = "non-negative" if allow_zero else "positive"
+        raise ValueError(f"{name} must be a finite {kind} number, got {value!r}")
+
+
+class Measurements(NamedTuple):
+    """One step's measurements: ranges (m), bearings (rad, robot frame) and landmark ids."""
+
+    ranges: FloatArray
+    bearings: FloatArray
+    ids: NDArray[np.int64]
 
 
 @dataclass(frozen=True)
@@ -38,9 +55,7 @@ class RobotConfig:
 
     def __post_init__(self) -> None:
         for name in ("dt", "max_speed", "max_turn_rate"):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or value <= 0:
-                raise ValueError(f"{name} must be a positive number, got {value!r}")
+            _check_positive(name, getattr(self, name))
         noise = np.asarray(self.motion_noise, dtype=float)
         if noise.shape != (6,) or not np.all(np.isfinite(noise)) or np.any(noise < 0):
             raise ValueError(f"motion_noise must be 6 non-negative numbers, got {self.motion_noise!r}")
@@ -54,6 +69,12 @@ class SensorConfig:
     fov: float = math.pi
     sigma_range: float = 0.1
     sigma_bearing: float = math.radians(2.0)
+
+    def __post_init__(self) -> None:
+        for name in ("sensor_range", "fov", "sigma_range", "sigma_bearing"):
+            _check_positive(name, getattr(self, name))
+        if self.fov > 2.0 * math.pi + 1e-12:
+            raise ValueError(f"fov must be at most 2*pi, got {self.fov!r}")
 
 
 @dataclass(frozen=True)
@@ -81,11 +102,8 @@ class RewardConfig:
         if self.reward not in REWARDS:
             raise ValueError(f"reward must be one of {REWARDS}, got {self.reward!r}")
         for name in ("d_cap", "divergence_threshold"):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or value <= 0:
-                raise ValueError(f"{name} must be a positive number, got {value!r}")
-        if not isinstance(self.wall_penalty, (int, float)) or not math.isfinite(self.wall_penalty) or self.wall_penalty < 0:
-            raise ValueError(f"wall_penalty must be a non-negative number, got {self.wall_penalty!r}")
+            _check_positive(name, getattr(self, name))
+        _check_positive("wall_penalty", self.wall_penalty, allow_zero=True)
 
 
 def map_error(estimates: FloatArray, truth: FloatArray, ids: NDArray[np.int64], d_cap: float) -> float:
@@ -173,14 +191,15 @@ class SeifExploreEnv(gym.Env):
 
     ## Observation Space
 
-    A flat `Dict` (SB3's `MultiInputPolicy` takes it as is), all `float32`:
+    A flat `Dict` of 1-D `float32` vectors and one `uint8` image, so that
+    SB3's `MultiInputPolicy` and its `check_env` take it as is:
 
     | Key              | Shape       | Range   | Content |
     |------------------|-------------|---------|---------|
     | `pose`           | (7,)        | [-1, 1] | estimated `x/h`, `y/h` (`h` = half the arena), `cos θ`, `sin θ`, and the pose's standard deviations `σx/s`, `σy/s`, `σθ/π` (`s` = `std_scale`, clipped at 1) |
-    | `landmarks`      | (K, 4)      | [-1, 1] | the `K` mapped landmarks nearest to the estimated pose, nearest first: position ahead and to the left of the robot (divided by the arena diagonal), and the major and minor semi-axes of their 95% ellipse (divided by `std_scale`, clipped at 1); zero rows pad |
+    | `landmarks`      | (4K,)       | [-1, 1] | the `K` mapped landmarks nearest to the estimated pose, nearest first, 4 numbers each (`reshape(K, 4)`): position ahead and to the left of the robot (divided by the arena diagonal), and the major and minor semi-axes of their 95% ellipse (divided by `std_scale`, clipped at 1); zeros pad |
     | `landmarks_mask` | (K,)        | {0, 1}  | 1 for the rows of `landmarks` that hold a landmark |
-    | `belief_map`     | (3, H, H)   | [0, 1]  | egocentric raster of `2·map_extent` metres, heading up (row 0 ahead, column 0 left): channel 0 the area the sensor has swept (from the *estimated* poses), channel 1 the mapped landmarks weighted by certainty `1/(1 + std/s)`, channel 2 the outside of the arena |
+    | `belief_map`     | (3, H, H) `uint8` | [0, 255] | egocentric raster of `2·map_extent` metres, heading up (row 0 ahead, column 0 left): channel 0 the area the sensor has swept (from the *estimated* poses, 255 = swept), channel 1 the mapped landmarks weighted by certainty `255/(1 + std/s)`, channel 2 the outside of the arena (255) |
 
     Uncertainties come from the filter's `local_marginals`: exact for the EKF
     and EIF; for the SEIF the constant-time Markov-blanket covariance (the
@@ -225,6 +244,26 @@ class SeifExploreEnv(gym.Env):
     the filter is told so), `info["wall_contact"]` is `True` and the step
     costs `wall_penalty`.
 
+    ## Info
+
+    | Key | Type | Content |
+    |---|---|---|
+    | `true_pose` | (3,) float | the true `(x, y, θ)` (for evaluation; agents must not use it) |
+    | `pose_estimate` | (3,) float | the filter's pose estimate |
+    | `pose_error` | float | distance between true and estimated position, m |
+    | `map_error` | float | `E_t` of Rewards |
+    | `pose_nees` | float | NEES of the pose against the covariance of the observation |
+    | `landmarks_mapped`, `landmarks_total` | int | landmarks in the filter's map, and in the world |
+    | `active_landmarks` | tuple of int | ids of the landmarks linked to the robot (all mapped ones for the exact filters) |
+    | `control` | (2,) float | commanded `(v, ω)` after scaling and clipping |
+    | `executed_control` | (2,) float | what the filter was told (`v = 0` at the wall) |
+    | `measurements` | `Measurements` | named tuple `(ranges, bearings, ids)` of this step |
+    | `step_time` | float | seconds in the filter this step with `measure_time=True`, else 0.0 |
+    | `wall_contact`, `diverged` | bool | see Episode End |
+
+    Variable-length entries are tuples, so that `gym.make_vec` can batch
+    the infos (as object arrays).
+
     ## Arguments
 
     ```python
@@ -248,7 +287,7 @@ class SeifExploreEnv(gym.Env):
     | `d_cap` | 2.0 | cap of a landmark's error in `E_t`, metres |
     | `wall_penalty` | 0.005 | per step in contact with the wall |
     | `divergence_threshold` | 5.0 | pose error that ends the episode, metres |
-    | `nearest_landmarks`, `map_size`, `map_extent`, `std_scale` | 8, 32, 8.0, 1.0 | observation shape (`ObservationConfig`) |
+    | `nearest_landmarks`, `map_size`, `map_extent`, `std_scale` | 8, 40, 8.0, 1.0 | observation shape (`ObservationConfig`) |
     | `coverage_resolution` | 0.5 | cell size of the swept-area grid, metres |
     | `measure_time` | `False` | fill `info["step_time"]` with the wall-clock seconds spent in the filter (otherwise 0.0: wall-clock time would make seeded episodes irreproducible) |
     | `render_mode` | `None` | `"rgb_array"` or `"human"` |
@@ -277,7 +316,7 @@ class SeifExploreEnv(gym.Env):
         wall_penalty: float = 0.005,
         divergence_threshold: float = 5.0,
         nearest_landmarks: int = 8,
-        map_size: int = 32,
+        map_size: int = 40,
         map_extent: float = 8.0,
         std_scale: float = 1.0,
         coverage_resolution: float = 0.5,
@@ -446,10 +485,11 @@ class SeifExploreEnv(gym.Env):
             "landmarks_mapped": int(filt.num_landmarks),
             "landmarks_total": int(self.world_config.num_landmarks),
             # the exact filters link the robot to every mapped landmark
-            "active_landmarks": np.asarray(getattr(filt, "active_landmarks", filt.landmark_ids)).copy(),
+            # (a tuple: its length varies, and vector envs stack arrays of one shape only)
+            "active_landmarks": tuple(np.asarray(getattr(filt, "active_landmarks", filt.landmark_ids)).tolist()),
             "control": np.asarray(control, dtype=np.float64).copy(),
             "executed_control": np.asarray(executed, dtype=np.float64).copy(),
-            "measurements": {"ranges": ranges, "bearings": bearings, "ids": ids},
+            "measurements": Measurements(ranges, bearings, ids),
             "step_time": step_time,
             "wall_contact": wall,
             "diverged": diverged,

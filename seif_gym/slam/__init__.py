@@ -1,19 +1,22 @@
 """The SLAM filter library of seif_gym, usable without the environment.
 
 Filters (one interface, :class:`SlamFilter`): :class:`SEIF` (sparse extended
-information filter), :class:`EIF` (exact extended information filter) and
-:class:`EKF` (EKF SLAM). Models: :class:`VelocityMotionModel` and
+information filter), :class:`EIF` (exact extended information filter),
+:class:`EKF` (EKF SLAM) and :class:`ESEIF` (exactly sparse extended
+information filter: bounded active set by relocalization, no overconfident
+approximation). Models: :class:`VelocityMotionModel` and
 :class:`RangeBearingSensor`.
 """
 
 from seif_gym.slam.base import SlamFilter, UnknownLandmarkError
 from seif_gym.slam.eif import EIF
 from seif_gym.slam.ekf import EKF
+from seif_gym.slam.eseif import ESEIF
 from seif_gym.slam.models import MotionModel, RangeBearingSensor, VelocityMotionModel, wrap_angle
 from seif_gym.slam.seif import SEIF
 
 #: Filters by name, for ``make_filter`` and the env's ``filter=`` argument.
-FILTERS: dict[str, type[SlamFilter]] = {"seif": SEIF, "eif": EIF, "ekf": EKF}
+FILTERS: dict[str, type[SlamFilter]] = {"seif": SEIF, "eif": EIF, "ekf": EKF, "eseif": ESEIF}
 
 
 def make_filter(name: str, motion, sensor, initial_pose, initial_pose_cov=None, **options) -> SlamFilter:
@@ -28,6 +31,7 @@ __all__ = [
     "make_filter",
     "EIF",
     "EKF",
+    "ESEIF",
     "MotionModel",
     "RangeBearingSensor",
     "SEIF",

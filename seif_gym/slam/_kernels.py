@@ -378,3 +378,76 @@ def conditional_std(landmark_info, count):
         d = landmark_info[i, 1, 1]
         out[i] = np.sqrt((a + d) / (a * d - b * c))
     return out
+
+
+@njit(cache=True)
+def blanket_joint_covariance(robot_info, robot_links, landmark_info, neighbour_index, neighbour_info, neighbour_count,
+                             information_vector, mean, block_position, active, targets, with_neighbours):  # fmt: skip
+    """Joint covariance of the robot and ``targets`` from a Markov-blanket block.
+
+    The block holds the robot, its ``active`` landmarks, the ``targets`` and,
+    with ``with_neighbours``, every landmark linked to a target in ``Omega``
+    (the targets' own Markov blankets, Probabilistic Robotics section 12.7).
+    It is factorised once (Cholesky) and solved for the ``3 + 2k`` columns of
+    the robot and the targets only. Returns the ``(3 + 2k, 3 + 2k)``
+    covariance, robot first, targets in the given order.
+    """
+    # collect the nodes: active, then targets, then the targets' neighbours (each once)
+    capacity = active.shape[0] + targets.shape[0]
+    if with_neighbours:
+        for i in targets:
+            capacity += neighbour_count[i]
+    nodes = np.empty(capacity, dtype=np.int64)
+    count = 0
+    for i in active:
+        if block_position[i] < 0:
+            block_position[i] = count
+            nodes[count] = i
+            count += 1
+    for i in targets:
+        if block_position[i] < 0:
+            block_position[i] = count
+            nodes[count] = i
+            count += 1
+    if with_neighbours:
+        for i in targets:
+            for slot in range(neighbour_count[i]):
+                j = neighbour_index[i, slot]
+                if block_position[j] < 0:
+                    block_position[j] = count
+                    nodes[count] = j
+                    count += 1
+    nodes = nodes[:count]
+    for p in range(count):
+        block_position[nodes[p]] = -1
+    omega, _, _ = gather(robot_info, robot_links, landmark_info, neighbour_index, neighbour_info,
+                         neighbour_count, information_vector, mean, block_position, nodes)  # fmt: skip
+    # rows of the robot and the targets in the block
+    k = targets.shape[0]
+    rows = np.empty(3 + 2 * k, dtype=np.int64)
+    for a in range(3):
+        rows[a] = a
+    for p in range(count):
+        block_position[nodes[p]] = p
+    for t in range(k):
+        o = 3 + 2 * block_position[targets[t]]
+        rows[3 + 2 * t] = o
+        rows[4 + 2 * t] = o + 1
+    for p in range(count):
+        block_position[nodes[p]] = -1
+    size = omega.shape[0]
+    lower = np.linalg.cholesky(omega)
+    # W = L^-1 E for the unit columns E of ``rows``; covariance = W^T W
+    w = np.zeros((size, rows.shape[0]))
+    for c in range(rows.shape[0]):
+        w[rows[c], c] = 1.0
+    for a in range(size):
+        for b in range(a):
+            lab = lower[a, b]
+            if lab != 0.0:
+                for c in range(rows.shape[0]):
+                    w[a, c] -= lab * w[b, c]
+        inv = 1.0 / lower[a, a]
+        for c in range(rows.shape[0]):
+            w[a, c] *= inv
+    return w.T @ w

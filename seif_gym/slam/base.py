@@ -277,6 +277,18 @@ class SlamFilter(ABC):
             covs[k] = self._marginal_covariance(np.array([3 + 2 * index, 4 + 2 * index]))
         return pose_cov, covs
 
+    def local_joint_covariance(self, landmark_indices) -> FloatArray:
+        """Joint covariance (3 + 2k, 3 + 2k) of the pose and the landmarks at ``landmark_indices``.
+
+        Ordered ``(x, y, theta, m_i1x, m_i1y, ...)``, cross-covariances
+        included (what data association needs for ``H Sigma H^T + Q``).
+        Exact here (the EKF slices it); the SEIF overrides it with its
+        constant-time Markov-blanket version.
+        """
+        indices = self._check_landmark_indices(landmark_indices)
+        state = np.concatenate([np.arange(3), (3 + 2 * indices[:, None] + np.arange(2)).ravel()]).astype(np.int64)
+        return self._marginal_covariance(state)
+
     def _check_landmark_indices(self, landmark_indices) -> NDArray[np.int64]:
         indices = np.asarray(landmark_indices)
         if indices.ndim != 1 or (indices.size and not np.issubdtype(indices.dtype, np.integer)):

@@ -507,6 +507,26 @@ class SEIF(SlamFilter):
         nodes = np.concatenate([self._active, np.array(outside, dtype=np.int64)])
         return blanket_covariances(store, nodes, indices)
 
+    def local_joint_covariance(self, landmark_indices, neighbours: bool = True) -> FloatArray:
+        """Joint covariance of the pose and the landmarks at ``landmark_indices``, in constant time.
+
+        Returns the ``(3 + 2k, 3 + 2k)`` covariance over ``(x, y, theta,
+        m_i1, m_i2, ...)`` (the pose-landmark cross-covariances included, which
+        an innovation covariance ``H Sigma H^T + Q`` needs) from the Markov
+        blanket: the information block over the robot, its active landmarks,
+        the requested landmarks and, with ``neighbours``, the landmarks linked
+        to them (Probabilistic Robotics section 12.7), conditioned on the rest
+        of the map. Never a dense inverse of ``Omega``: one Cholesky factor of
+        the block, solved for the requested columns only.
+        """
+        indices = self._check_landmark_indices(landmark_indices)
+        store = self._store
+        return _kernels.blanket_joint_covariance(
+            store.robot_info, store.robot_links, store.landmark_info,
+            store.neighbour_index, store.neighbour_info, store.neighbour_count,
+            store.information_vector, store.mean, store.block_position, self._active, indices, bool(neighbours),
+        )  # fmt: skip
+
     def landmark_std(self) -> FloatArray:
         """``sqrt(trace(Omega_ii^-1))`` per landmark: the conditional uncertainty, in O(n) without a solve."""
         return _kernels.conditional_std(self._store.landmark_info, self.num_landmarks)

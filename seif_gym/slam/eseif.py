@@ -1,0 +1,485 @@
+"""The Exactly Sparse Extended Information Filter (Walter, Eustice & Leonard, IJRR 2007).
+
+The SEIF (:mod:`seif_gym.slam.seif`) bounds the robot's links by
+*approximating* the posterior: its sparsification step enforces a conditional
+independence that the posterior does not have, and the result can hold more
+information than the data give (``seeds/003``, appendix A.1: the filter
+becomes overconfident). The ESEIF bounds the same links without any
+approximation of the information it keeps. When the active set would grow
+past its bound ``k`` it *sparsifies by relocalization*:
+
+1. split the scan's measurements into ``z_alpha`` and ``z_beta``, where
+   ``z_beta`` are a few measurements of landmarks mapped before this scan
+   (:func:`select_relocalization_landmarks`);
+2. incorporate ``z_alpha`` as usual (``SEIF.md`` section 2);
+3. marginalize the robot pose out (:func:`marginalize_robot`): exact, it only
+   links the landmarks that were linked to the robot to one another;
+4. start a new robot pose with no prior information and add the measurement
+   factors of ``z_beta`` to it (the same equations as ``SEIF.md`` section 2
+   applied to the marginalized matrix). The new pose is linked to the
+   ``z_beta`` landmarks only.
+
+Every step is exact Gaussian inference except that the information the
+marginalized pose carried about the *current* pose (odometry and past
+measurements, given the map) is discarded, and ``z_beta`` informs only the new
+pose, not the map through the old one. Discarding information can only make
+the filter less certain: the ESEIF is conservative with respect to the EIF
+(see :class:`ESEIF`, Notes, for the argument; ``tests/test_eseif.py`` checks
+``Sigma_ESEIF - Sigma_EIF >= 0`` along a run).
+
+Every step costs time in the size of the active set and of the scan, never in
+the size of the map: marginalizing the robot touches only the block of the
+robot and the landmarks linked to it. Like :mod:`seif_gym.slam.seif`, this
+module has plain numpy *reference* functions and compiled (numba) twins used by
+default; ``implementation="reference"`` runs the former.
+"""
+
+from __future__ import annotations
+
+from typing import Any, ClassVar
+
+import numpy as np
+from numba import njit
+from numpy.typing import NDArray
+
+from seif_gym.slam import _kernels
+from seif_gym.slam.seif import SEIF, measurement_update
+
+__all__ = [
+    "ESEIF",
+    "RELOCALIZATION_RCOND",
+    "marginalize_robot",
+    "marginalize_robot_block",
+    "relocalization_pose_information",
+    "select_relocalization_landmarks",
+]
+
+FloatArray = NDArray[np.float64]
+IndexArray = NDArray[np.int64]
+
+#: A relocalization is refused when the pose information it would give has
+#: ``lambda_min < RELOCALIZATION_RCOND * lambda_max`` (a degenerate geometry).
+RELOCALIZATION_RCOND = 1e-9
+
+
+# ---------------------------------------------------------------------------
+# Reference functions (dense blocks, literal equations)
+# ---------------------------------------------------------------------------
+def marginalize_robot(omega: FloatArray, xi: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """Marginalize the robot out of the block of the robot and the landmarks linked to it.
+
+    Parameters
+    ----------
+    omega, xi : ndarray
+        Information matrix (s, s) and vector (s,) of the block, robot first
+        (rows 0-2), then every landmark with a non-zero robot link (the
+        landmarks outside the block have ``Omega_xm = 0`` and are unaffected).
+
+    Returns
+    -------
+    omega_marg, xi_marg : ndarray
+        The same block with the robot rows and columns (and ``xi_x``) exactly
+        zero, and the landmark block replaced by its Schur complement.
+
+    Notes
+    -----
+    With ``m`` the landmarks of the block::
+
+        Omega_mm' = Omega_mm - Omega_mx Omega_xx^-1 Omega_xm
+        xi_m'     = xi_m     - Omega_mx Omega_xx^-1 xi_x
+        Omega_xx' = 0,  Omega_xm' = 0,  xi_x' = 0
+
+    ``(Omega_mm', xi_m')`` is the exact information form of the marginal
+    ``p(m | data)``; its mean is the ``m`` part of ``Omega^-1 xi``. The landmark
+    block becomes dense: every landmark linked to the robot is now linked to
+    every other one. The zero robot rows are the "no prior" of the new pose
+    that :class:`ESEIF` relocalizes next.
+    """
+    robot, rest = slice(0, 3), slice(3, len(xi))
+    gain = np.linalg.solve(omega[robot, robot], omega[robot, rest]).T  # Omega_mx Omega_xx^-1
+    omega_marg = np.zeros_like(omega)
+    xi_marg = np.zeros_like(xi)
+    omega_marg[rest, rest] = omega[rest, rest] - gain @ omega[robot, rest]
+    omega_marg = 0.5 * (omega_marg + omega_marg.T)
+    xi_marg[rest] = xi[rest] - gain @ xi[robot]
+    return omega_marg, xi_marg
+
+
+@njit(cache=True)
+def marginalize_robot_block(omega, xi):
+    """Fast :func:`marginalize_robot` (Cholesky of ``Omega_xx``, exactly symmetric result)."""
+    size = xi.shape[0]
+    lower = np.linalg.cholesky(np.ascontiguousarray(omega[:3, :3]))
+    # W = L^-1 Omega_x,: and w = L^-1 xi_x by forward substitution; the Schur term is W^T W, W^T w
+    w = np.ascontiguousarray(omega[:3, :]).copy()
+    wx = xi[:3].copy()
+    for a in range(3):
+        for b in range(a):
+            for c in range(size):
+                w[a, c] -= lower[a, b] * w[b, c]
+            wx[a] -= lower[a, b] * wx[b]
+        for c in range(size):
+            w[a, c] /= lower[a, a]
+        wx[a] /= lower[a, a]
+    omega_marg = np.zeros((size, size))
+    xi_marg = np.zeros(size)
+    for r in range(3, size):
+        value = xi[r]
+        for a in range(3):
+            value -= w[a, r] * wx[a]
+        xi_marg[r] = value
+        for c in range(r, size):
+            value = omega[r, c]
+            for a in range(3):
+                value -= w[a, r] * w[a, c]
+            omega_marg[r, c] = value
+            omega_marg[c, r] = value
+    return omega_marg, xi_marg
+
+
+@njit(cache=True)
+def relocalization_pose_information(mean, landmark_info, indices, noise_cov):
+    """Pose information ``J_i = H_x^T S_i^-1 H_x`` each measured landmark would give, shape (m, 3, 3).
+
+    ``S_i = Q + H_m P_i H_m^T`` counts the landmark's own uncertainty, with
+    ``P_i = Omega_ii^-1`` its conditional covariance (the constant-time proxy
+    the SEIF also uses; a lower bound of the marginal). ``H_x``, ``H_m`` are the
+    pose and landmark columns of ``H`` (``SEIF.md``, range-bearing sensor) at
+    the current mean.
+    """
+    count = indices.shape[0]
+    out = np.empty((count, 3, 3))
+    q00, q01, q11 = noise_cov[0, 0], noise_cov[0, 1], noise_cov[1, 1]
+    H_x = np.empty((2, 3))
+    for k in range(count):
+        i = indices[k]
+        dx = mean[3 + 2 * i] - mean[0]
+        dy = mean[4 + 2 * i] - mean[1]
+        q = dx * dx + dy * dy
+        r = np.sqrt(q)
+        # H = [H_x | H_m] with H_m = -H_x[:, :2]
+        H_x[0, 0], H_x[0, 1], H_x[0, 2] = -dx / r, -dy / r, 0.0
+        H_x[1, 0], H_x[1, 1], H_x[1, 2] = dy / q, -dx / q, -1.0
+        h00, h01, h10, h11 = dx / r, dy / r, -dy / q, dx / q
+        # P = Omega_ii^-1
+        a, b, c, d = landmark_info[i, 0, 0], landmark_info[i, 0, 1], landmark_info[i, 1, 0], landmark_info[i, 1, 1]
+        det = a * d - b * c
+        p00, p01, p11 = d / det, -0.5 * (b + c) / det, a / det
+        # S = Q + H_m P H_m^T (symmetric 2 x 2), then S^-1
+        t00, t01 = h00 * p00 + h01 * p01, h00 * p01 + h01 * p11
+        t10, t11 = h10 * p00 + h11 * p01, h10 * p01 + h11 * p11
+        s00 = q00 + t00 * h00 + t01 * h01
+        s01 = q01 + t00 * h10 + t01 * h11
+        s11 = q11 + t10 * h10 + t11 * h11
+        det = s00 * s11 - s01 * s01
+        i00, i01, i11 = s11 / det, -s01 / det, s00 / det
+        for u in range(3):
+            for v in range(3):
+                out[k, u, v] = (
+                    H_x[0, u] * (i00 * H_x[0, v] + i01 * H_x[1, v])
+                    + H_x[1, u] * (i01 * H_x[0, v] + i11 * H_x[1, v])
+                )
+    return out
+
+
+@njit(cache=True)
+def _det3(m):
+    return (
+        m[0, 0] * (m[1, 1] * m[2, 2] - m[1, 2] * m[2, 1])
+        - m[0, 1] * (m[1, 0] * m[2, 2] - m[1, 2] * m[2, 0])
+        + m[0, 2] * (m[1, 0] * m[2, 1] - m[1, 1] * m[2, 0])
+    )
+
+
+@njit(cache=True)
+def select_relocalization_landmarks(pose_information, count, rcond):
+    """Pick ``count`` measurements whose summed pose information has the largest determinant.
+
+    Parameters
+    ----------
+    pose_information : ndarray, shape (m, 3, 3)
+        ``J_i`` of each candidate (:func:`relocalization_pose_information`).
+    count : int
+        Measurements to withhold, at least 2 (one range-bearing measurement
+        leaves the rotation about its landmark unobserved).
+    rcond : float
+        Refuse (return an empty array) when the chosen ``J = sum J_i`` has
+        ``lambda_min(J) < rcond lambda_max(J)``.
+
+    Returns
+    -------
+    ndarray of int64
+        Positions in ``pose_information`` of the chosen measurements (best
+        pair first, then greedy additions), or empty.
+
+    Notes
+    -----
+    ``det J`` is the D-optimal criterion: it rewards landmarks that are close,
+    well mapped and spread in bearing (the relocalized pose is well
+    conditioned). The best pair is found exhaustively (``O(m^2)`` for a scan
+    of ``m`` measurements), further ones greedily.
+    """
+    m = pose_information.shape[0]
+    chosen = np.empty(0, dtype=np.int64)
+    if m < 2 or count < 2:
+        return chosen
+    best, first, second = -np.inf, -1, -1
+    for i in range(m):
+        for j in range(i + 1, m):
+            value = _det3(pose_information[i] + pose_information[j])
+            if value > best:
+                best, first, second = value, i, j
+    taken = np.zeros(m, dtype=np.bool_)
+    taken[first] = True
+    taken[second] = True
+    total = pose_information[first] + pose_information[second]
+    chosen = np.empty(min(count, m), dtype=np.int64)
+    chosen[0], chosen[1] = first, second
+    for n in range(2, chosen.shape[0]):
+        best, pick = -np.inf, -1
+        for k in range(m):
+            if not taken[k]:
+                value = _det3(total + pose_information[k])
+                if value > best:
+                    best, pick = value, k
+        taken[pick] = True
+        total = total + pose_information[pick]
+        chosen[n] = pick
+    eigenvalues = np.linalg.eigvalsh(0.5 * (total + total.T))
+    if not eigenvalues[0] > rcond * eigenvalues[2]:
+        return np.empty(0, dtype=np.int64)
+    return chosen
+
+
+# ---------------------------------------------------------------------------
+# The filter
+# ---------------------------------------------------------------------------
+class ESEIF(SEIF):
+    """Exactly Sparse Extended Information Filter SLAM with known correspondences.
+
+    Same interface as :class:`~seif_gym.slam.seif.SEIF` (motion update, mean
+    recovery, Markov-blanket marginals and the read-only state are the
+    SEIF's); only the way the active set is bounded differs.
+
+    Parameters
+    ----------
+    motion, sensor, initial_pose, initial_pose_cov
+        See :class:`~seif_gym.slam.base.SlamFilter`.
+    max_active : int or None, default 8
+        Bound ``k`` (at least 2) on the landmarks linked to the robot after
+        each update; ``None`` never sparsifies (the filter is then the exact
+        EIF). See Notes for the one case in which more stay linked.
+    relocalization_landmarks : int, default 2
+        ``k_beta``: measurements withheld to relocalize the robot, at least 2
+        and at most ``max_active``. Fewer leave more room for the active set
+        to grow before the next relocalization (each one discards the pose's
+        history); more give a better relocalized pose.
+    mean_recovery : {"amortized", "exact"}, default "amortized"
+    recovery_landmarks : int, default 8
+    implementation : {"compiled", "reference"}, default "compiled"
+        As for the SEIF.
+
+    Attributes
+    ----------
+    relocalizations : int
+        Sparsifications by relocalization performed so far.
+    deferred_relocalizations : int
+        Updates after which more than ``max_active`` landmarks stayed linked
+        to the robot because no relocalization was possible (see Notes).
+
+    Notes
+    -----
+    **One update.** Let ``Gamma`` be the active landmarks (linked to the
+    robot), ``O`` the landmarks of the scan and ``K`` those of ``O`` mapped
+    before this scan.
+
+    *Ordinary update*, when ``|Gamma u O| <= k``: ``SEIF.md`` section 2 with
+    all measurements, ``Gamma <- Gamma u O``, then mean recovery.
+
+    *Sparsification by relocalization*, when ``|Gamma u O| > k``:
+
+    (a) Choose ``z_beta``: ``k_beta`` measurements of landmarks in ``K``
+        maximizing ``det sum J_i`` (:func:`select_relocalization_landmarks`);
+        ``z_alpha`` is the rest of the scan, including every landmark new to
+        the map (it needs the robot link to be initialised).
+    (b) Incorporate ``z_alpha`` (``SEIF.md`` section 2, linearized at the
+        current mean)::
+
+            Omega <- Omega + sum_alpha H_i^T Q^-1 H_i
+            xi    <- xi    + sum_alpha H_i^T Q^-1 [wrap(z_i - z_hat_i) + H_i mu]
+
+        so that ``Gamma <- Gamma u alpha``, then recover the mean (the
+        linearization point of step d).
+    (c) Marginalize the robot (:func:`marginalize_robot`), over the block of
+        the robot and ``Gamma`` only (``Omega_xm = 0`` elsewhere)::
+
+            Omega_mm <- Omega_mm - Omega_mx Omega_xx^-1 Omega_xm
+            xi_m     <- xi_m     - Omega_mx Omega_xx^-1 xi_x
+            Omega_xx, Omega_xm, xi_x <- 0
+
+        The landmarks of ``Gamma`` become linked to one another (a dense
+        block over ``|Gamma|``, at most ``k`` plus the scan, landmarks);
+        nothing else changes.
+    (d) Relocalize: a new pose ``x`` with no prior information, constrained
+        by ``z_beta`` through the sensor model ``z_i = h(x, m_i) + v_i``,
+        ``v_i ~ N(0, Q)``, linearized at ``(mu_x, mu_beta)``::
+
+            Omega <- Omega + sum_beta H_i^T Q^-1 H_i
+            xi    <- xi    + sum_beta H_i^T Q^-1 [wrap(z_i - z_hat_i) + H_i mu]
+
+        ``Omega_xx = sum_beta H_x,i^T Q^-1 H_x,i`` (rank 3 for two or more
+        landmarks in general position) and the robot is linked to the
+        ``z_beta`` landmarks only: ``Gamma <- beta``, ``|beta| <= k``. This is
+        the information form of Walter et al.'s relocalization
+        ``x = g(m_beta, z_beta)`` by the inverse sensor model (with more than
+        the 3 equations a pose needs, the linearized least-squares solution).
+        The new mean is ``mu + Omega^-1 sum_beta H_i^T Q^-1 nu_i``: one
+        Gauss-Newton step of the relocalization from the current estimate,
+        which the mean recovery that follows computes.
+
+    **Why it is conservative.** Write the information matrix before (c) as
+    ``Omega`` and its robot-marginal ``Omega_m'``. Then::
+
+        Omega - [0, 0; 0, Omega_m'] = [I; Omega_mx Omega_xx^-1] Omega_xx [I, Omega_xx^-1 Omega_xm] >= 0
+
+    so the ESEIF's matrix after (d), ``[0, 0; 0, Omega_m'] + B`` (``B`` the
+    ``z_beta`` factors), holds no more information than the EIF's
+    ``Omega + B``, which incorporates the same measurements at the same
+    linearization point. Motion updates, measurement updates and
+    marginalization are monotone (a matrix with less information stays below
+    one with more), so by induction ``Sigma_ESEIF >= Sigma_EIF`` after every
+    step whenever both filters linearize at the same points (exactly so on
+    noise-free data). The SEIF's sparsification has no such bound.
+
+    **When no relocalization is possible.** It needs two measurements of
+    landmarks mapped before this scan (a single range-bearing measurement
+    leaves the rotation about the landmark free) and ``max_active >= 2``. If
+    the bound would be exceeded and the scan has fewer (or only a
+    degenerate geometry, ``lambda_min(J) < RELOCALIZATION_RCOND
+    lambda_max(J)``), all measurements are incorporated as ordinary ones:
+    nothing is approximated or lost, but the active set exceeds ``k`` until
+    the next update that can relocalize (which the still-exceeded bound then
+    triggers). ``deferred_relocalizations`` counts these updates; typically
+    the first scans, when every landmark is new.
+    """
+
+    OPTIONS: ClassVar[dict[str, Any]] = {**SEIF.OPTIONS, "relocalization_landmarks": 2}
+
+    def _check_options(self, options: dict[str, Any]) -> None:
+        super()._check_options(options)
+        max_active = options["max_active"]
+        if max_active is not None and max_active < 2:
+            raise ValueError(
+                f"max_active must be at least 2 or None (relocalization needs two landmarks), got {max_active}"
+            )
+        count = options["relocalization_landmarks"]
+        if isinstance(count, bool) or not isinstance(count, (int, np.integer)):
+            raise TypeError(f"relocalization_landmarks must be an int, got {type(count).__name__}")
+        if count < 2:
+            raise ValueError(f"relocalization_landmarks must be at least 2, got {count}")
+        if max_active is not None and count > max_active:
+            raise ValueError(f"relocalization_landmarks ({count}) must not exceed max_active ({max_active})")
+
+    def _initialize(self, pose: FloatArray, pose_cov: FloatArray) -> None:
+        super()._initialize(pose, pose_cov)
+        self.relocalization_landmarks = int(self.options["relocalization_landmarks"])
+        self.relocalizations = 0
+        self.deferred_relocalizations = 0
+
+    # -- one update ----------------------------------------------------------------
+    def _update(self, ranges: FloatArray, bearings: FloatArray, indices: IndexArray, is_new: NDArray[np.bool_]) -> None:
+        if np.any(is_new):
+            self._add_landmarks(ranges[is_new], bearings[is_new])
+        self._update_count += 1
+        withheld = self._plan_relocalization(indices, is_new)
+        if withheld is None:
+            self._incorporate(ranges, bearings, indices)
+            self._recover_mean()
+            if self.max_active is not None and len(self._active) > self.max_active:
+                self.deferred_relocalizations += 1
+            return
+        kept = np.ones(len(indices), dtype=bool)
+        kept[withheld] = False
+        self._incorporate(ranges[kept], bearings[kept], indices[kept])  # (b)
+        self._recover_mean()
+        self._marginalize_robot()  # (c)
+        self._relocalize(ranges[withheld], bearings[withheld], indices[withheld])  # (d)
+        self._recover_mean()
+        self.relocalizations += 1
+
+    def _add_landmarks(self, ranges: FloatArray, bearings: FloatArray) -> None:
+        """Append new landmarks with zero information at the inverse sensor model's positions."""
+        store = self._store
+        inverse = getattr(self.sensor, "inverse_trusted", self.sensor.inverse)
+        store.add_landmarks(inverse(store.mean[:3], ranges, bearings))
+        if store.capacity > len(self._last_observed):
+            grow = store.capacity - len(self._last_observed)
+            self._last_observed = np.concatenate([self._last_observed, np.zeros(grow, dtype=np.int64)])
+            self._is_active = np.concatenate([self._is_active, np.zeros(grow, dtype=bool)])
+
+    def _plan_relocalization(self, indices: IndexArray, is_new: NDArray[np.bool_]) -> IndexArray | None:
+        """Positions in the scan of ``z_beta`` (step a), or ``None`` for an ordinary update."""
+        if self.max_active is None:
+            return None
+        newly_active = int(np.count_nonzero(~self._is_active[indices]))
+        if len(self._active) + newly_active <= self.max_active:
+            return None
+        candidates = np.flatnonzero(~is_new)
+        if len(candidates) < 2:
+            return None
+        store = self._store
+        information = relocalization_pose_information(
+            store.mean, store.landmark_info, indices[candidates], self._measurement_cov
+        )
+        chosen = select_relocalization_landmarks(information, self.relocalization_landmarks, RELOCALIZATION_RCOND)
+        if len(chosen) == 0:
+            return None
+        return candidates[chosen]
+
+    def _incorporate(self, ranges: FloatArray, bearings: FloatArray, indices: IndexArray) -> None:
+        """``SEIF.md`` section 2 with these measurements; their landmarks become active."""
+        if len(indices) == 0:
+            return
+        store = self._store
+        if self._compiled:
+            _kernels.measurement_update(
+                store.robot_info, store.robot_links, store.landmark_info,
+                store.information_vector, store.mean, indices, ranges, bearings, self._measurement_info,
+            )  # fmt: skip
+        else:
+            omega, xi, mu = store.gather(indices)
+            omega, xi = measurement_update(omega, xi, mu, ranges, bearings, self._measurement_info)
+            store.scatter(indices, omega, xi)
+        self._last_observed[indices] = self._update_count
+        newly_active = indices[~self._is_active[indices]]
+        if len(newly_active):
+            self._active = np.concatenate([self._active, newly_active])
+            self._is_active[newly_active] = True
+
+    def _marginalize_robot(self) -> None:
+        """Step (c): Schur complement over the robot, on the block of the robot and ``Gamma``."""
+        store = self._store
+        block = self._active
+        if self._compiled:
+            omega, xi, _ = _kernels.gather(
+                store.robot_info, store.robot_links, store.landmark_info,
+                store.neighbour_index, store.neighbour_info, store.neighbour_count,
+                store.information_vector, store.mean, store.block_position, block,
+            )  # fmt: skip
+            omega, xi = marginalize_robot_block(omega, xi)
+            store.reserve_degree(block, len(block))
+            _kernels.scatter(
+                store.robot_info, store.robot_links, store.landmark_info,
+                store.neighbour_index, store.neighbour_info, store.neighbour_count,
+                store.information_vector, block, omega, xi,
+            )  # fmt: skip
+        else:
+            omega, xi, _ = store.gather(block)
+            omega, xi = marginalize_robot(omega, xi)
+            store.scatter(block, omega, xi)
+        self._is_active[block] = False
+        self._active = np.empty(0, dtype=np.int64)
+
+    def _relocalize(self, ranges: FloatArray, bearings: FloatArray, indices: IndexArray) -> None:
+        """Step (d): the ``z_beta`` factors on the new pose, which has no information before them."""
+        self._incorporate(ranges, bearings, indices)

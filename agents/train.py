@@ -3,11 +3,14 @@
 Usage::
 
     python -m agents.train --algo ppo --env SeifExplore-v0 --timesteps 2000000 --out runs/ppo
+    python -m agents.train --env SeifExplore-v0 --wrapper agents.adversary:SeifVsEkfReward --out runs/adversary
 
 Hyperparameters come from ``agents/hyperparams/<algo>.yml`` (rl-zoo3's
 format: one entry per env id with ``n_envs``, ``normalize``,
 ``policy_kwargs`` and the algorithm's keyword arguments); ``--env-kwargs``
-(JSON) and ``--hyperparams key=value`` override them. The run writes to
+(JSON) and ``--hyperparams key=value`` override them. ``--wrapper module:Class``
+(with ``--wrapper-kwargs`` JSON) wraps every env, for training and evaluation
+(e.g. the adversarial reward of :mod:`agents.adversary`). The run writes to
 ``--out``:
 
 =========================  =====================================================
@@ -23,6 +26,7 @@ format: one entry per env id with ``n_envs``, ``normalize``,
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import time
 from dataclasses import dataclass, field
@@ -61,6 +65,8 @@ class TrainConfig:
     checkpoint_freq: int = 250_000
     vec_env: str = "dummy"
     progress_bar: bool = True
+    wrapper: str | None = None
+    wrapper_kwargs: dict[str, Any] = field(default_factory=dict)
 
 
 def _literal(text: Any) -> Any:
@@ -84,6 +90,26 @@ def load_hyperparams(algo: str, env_id: str) -> dict[str, Any]:
     if env_id not in entries:
         raise ValueError(f"{path.name} has no entry for env {env_id!r}; entries: {sorted(entries)}")
     return dict(entries[env_id])
+
+
+def load_wrapper(spec: str | None):
+    """The gymnasium wrapper class named ``module:Class`` (``None`` for none)."""
+    if not spec:
+        return None
+    import importlib
+
+    module_name, sep, class_name = spec.partition(":")
+    if not sep or not module_name or not class_name:
+        raise ValueError(f"--wrapper takes module:Class, got {spec!r}")
+    wrapper = getattr(importlib.import_module(module_name), class_name, None)
+    if wrapper is None:
+        raise ValueError(f"module {module_name!r} has no {class_name!r}")
+    return wrapper
+
+
+def _wrapped_env(env_id: str, wrapper: str, wrapper_kwargs: dict[str, Any], **env_kwargs: Any) -> gym.Env:
+    """``wrapper(gym.make(env_id, **env_kwargs), **wrapper_kwargs)``; module level, so subprocess envs can pickle it."""
+    return load_wrapper(wrapper)(gym.make(env_id, **env_kwargs), **wrapper_kwargs)
 
 
 def _parse_override(text: str) -> tuple[str, Any]:
@@ -120,6 +146,8 @@ def resolve_config(args: argparse.Namespace) -> TrainConfig:
         checkpoint_freq=args.checkpoint_freq,
         vec_env=args.vec_env,
         progress_bar=not args.no_progress_bar,
+        wrapper=args.wrapper,
+        wrapper_kwargs=json.loads(args.wrapper_kwargs) if args.wrapper_kwargs else {},
     )
 
 
@@ -136,6 +164,12 @@ def train(config: TrainConfig):
     vec_cls = SubprocVecEnv if config.vec_env == "subproc" and config.n_envs > 1 else DummyVecEnv
     # "seif_gym:<id>" makes worker processes (forkserver/spawn) import seif_gym, which registers the id
     env_id = config.env_id if ":" in config.env_id else f"seif_gym:{config.env_id}"
+    if config.wrapper:
+        # the reward wrapper (e.g. agents.adversary:SeifVsEkfReward) goes *inside* SB3's Monitor, so that the
+        # logged episode returns and the EvalCallback's best model use the wrapped reward (make_vec_env's
+        # wrapper_class would sit outside the Monitor, which would then log the env's own reward)
+        load_wrapper(config.wrapper)  # fail early
+        env_id = functools.partial(_wrapped_env, env_id, config.wrapper, dict(config.wrapper_kwargs))
     env = make_vec_env(env_id, n_envs=config.n_envs, seed=config.seed, vec_env_cls=vec_cls, env_kwargs=config.env_kwargs)
     eval_env = make_vec_env(env_id, n_envs=1, seed=config.seed + 10_000, env_kwargs=config.env_kwargs)
     if config.normalize:
@@ -154,6 +188,8 @@ def train(config: TrainConfig):
                 "policy_kwargs": repr(config.policy_kwargs),
                 "env_kwargs": config.env_kwargs,
                 "algo_kwargs": config.algo_kwargs,
+                "wrapper": config.wrapper,
+                "wrapper_kwargs": config.wrapper_kwargs,
             },
             indent=2,
         )
@@ -213,6 +249,10 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--eval-episodes", type=int, default=10)
     parser.add_argument("--checkpoint-freq", type=int, default=250_000)
     parser.add_argument("--no-progress-bar", action="store_true")
+    parser.add_argument("--wrapper", default=None,
+                        help="module:Class of a gymnasium wrapper applied to every env (training and evaluation), "
+                        "e.g. agents.adversary:SeifVsEkfReward")
+    parser.add_argument("--wrapper-kwargs", default=None, help="JSON dict of the wrapper's keyword arguments")
     return parser
 
 

@@ -33,8 +33,8 @@ corridor without loop closure the heading error, and with it the whole map's
 rotation, slowly drifts, so absolute errors far from the robot grow with the
 corridor's length for every filter, EKF included; the local map is what a
 working filter keeps accurate, and the script checks it is under 10 cm. The
-SEIF's 1-sigma is known to be overconfident, ``SEIF.md`` section 3.) Every filter gets
-exactly the same controls and measurements for a given n.
+SEIF's 1-sigma is known to be overconfident, ``SEIF.md`` section 3.) Every
+filter gets exactly the same controls and measurements for a given n.
 
 Phases of one (filter, n) run
 -----------------------------
@@ -65,10 +65,14 @@ from the filter's per-step times at the smaller sizes already measured
 nominal 2 for EKF and 3 for EIF), integrated over the build. The estimate is
 rough (the fitted p is inflated where the smaller matrices still fit in the
 CPU caches), so a run is skipped only when estimated at over twice the
-budget; any other run is started, and aborted if its build passes the budget. Either
-way the table says "not run" and a note gives the reason, the estimate and the
-last measured size and time. Estimates only decide what to skip; they never
-appear in the table.
+budget; any other run is started, and aborted if its build passes the budget.
+Either way the table says "not run" and a note gives the reason (the estimate,
+or how far the build got) and the last measured size and time. Estimates only
+decide what to skip; they never appear in the table.
+
+Other work on the machine slows every filter (and the EKF/EIF builds most);
+the environment section and the last line print the load average so that a
+disturbed run can be recognised.
 
 BLAS threads
 ------------

@@ -17,6 +17,7 @@ from numpy.typing import NDArray
 
 from seif_gym.observation import BeliefEncoder, ObservationConfig
 from seif_gym.slam import FILTERS, RangeBearingSensor, SlamFilter, VelocityMotionModel, make_filter
+from seif_gym.slam.association import AssociationAudit, Associator
 from seif_gym.slam.models import wrap_angle
 from seif_gym.world import LAYOUTS, World, WorldConfig, make_landmarks
 
@@ -83,10 +84,13 @@ class FilterConfig:
 
     filter: str = "seif"
     max_active: int | None = 8
+    data_association: str = "known"
 
     def __post_init__(self) -> None:
         if self.filter not in FILTERS:
             raise ValueError(f"filter must be one of {tuple(FILTERS)}, got {self.filter!r}")
+        if self.data_association not in ("known", "ml"):
+            raise ValueError(f"data_association must be 'known' or 'ml', got {self.data_association!r}")
 
 
 @dataclass(frozen=True)
@@ -260,6 +264,7 @@ class SeifExploreEnv(gym.Env):
     | `measurements` | `Measurements` | named tuple `(ranges, bearings, ids)` of this step |
     | `step_time` | float | seconds in the filter this step with `measure_time=True`, else 0.0 |
     | `wall_contact`, `diverged` | bool | see Episode End |
+    | `association_errors` | int | with `data_association="ml"`: this step's wrong, duplicate or discarded association decisions (0 with known ids) |
 
     Variable-length entries are tuples, so that `gym.make_vec` can batch
     the infos (as object arrays).
@@ -283,6 +288,7 @@ class SeifExploreEnv(gym.Env):
     | `max_speed`, `max_turn_rate` | 1.0, 1.0 | action scaling, m/s and rad/s |
     | `filter` | `"seif"` | any of `seif_gym.slam.FILTERS` |
     | `max_active` | 8 | SEIF's active-landmark bound `k` (ignored by the exact filters) |
+    | `data_association` | `"known"` | `"known"`: the filter gets the true landmark ids; `"ml"`: maximum-likelihood association (`seif_gym.slam.Associator`: χ² gate, new-landmark threshold, mutual exclusion; SEIF covariances from the Markov blanket), so that agents and filters face association errors |
     | `reward` | `"map_error"` | or `"information_gain"` |
     | `d_cap` | 2.0 | cap of a landmark's error in `E_t`, metres |
     | `wall_penalty` | 0.005 | per step in contact with the wall |
@@ -311,6 +317,7 @@ class SeifExploreEnv(gym.Env):
         max_turn_rate: float = 1.0,
         filter: str = "seif",
         max_active: int | None = 8,
+        data_association: str = "known",
         reward: str = "map_error",
         d_cap: float = 2.0,
         wall_penalty: float = 0.005,
@@ -328,7 +335,7 @@ class SeifExploreEnv(gym.Env):
         self.world_config = WorldConfig(arena_size=arena_size, layout=layout, num_landmarks=num_landmarks)
         self.robot_config = RobotConfig(dt=dt, max_speed=max_speed, max_turn_rate=max_turn_rate, motion_noise=tuple(motion_noise))
         self.sensor_config = SensorConfig(sensor_range=sensor_range, fov=fov, sigma_range=sigma_range, sigma_bearing=sigma_bearing)
-        self.filter_config = FilterConfig(filter=filter, max_active=max_active)
+        self.filter_config = FilterConfig(filter=filter, max_active=max_active, data_association=data_association)
         self.reward_config = RewardConfig(reward=reward, d_cap=d_cap, wall_penalty=wall_penalty, divergence_threshold=divergence_threshold)
         self.observation_config = ObservationConfig(
             nearest_landmarks=nearest_landmarks,
@@ -387,13 +394,17 @@ class SeifExploreEnv(gym.Env):
         start = np.array([*start_rng.uniform(-h, h, 2), start_rng.uniform(-math.pi, math.pi)])
         self.world = World(config, self.motion, self.sensor, landmarks, start)
         self.filter = make_filter(self.filter_config.filter, self.motion, self.sensor, start, **self._filter_options())
+        ml = self.filter_config.data_association == "ml"
+        self.associator = Associator() if ml else None
+        self.audit = AssociationAudit() if ml else None
+        self._association_errors = 0
         self.encoder.reset()
         self.trajectory = [start.copy()]
         self.estimated_trajectory = [start.copy()]
         self._elapsed_steps = 0
         ranges, bearings, ids = self.world.measure(self._sensor_rng)
         started = self._clock()
-        self.filter.update_trusted(ranges, bearings, ids)
+        self._filter_update(ranges, bearings, ids)
         step_time = self._clock() - started
         self.encoder.sweep(self.filter.pose)
         self._map_error = self.map_error()
@@ -419,7 +430,7 @@ class SeifExploreEnv(gym.Env):
         started = self._clock()
         # the simulator's data are valid by construction: skip the filter's input checks
         self.filter.predict_trusted(executed, dt)
-        self.filter.update_trusted(*measurement)
+        self._filter_update(*measurement)
         step_time = self._clock() - started
         estimate = self.filter.pose
         self.encoder.sweep(estimate)
@@ -444,10 +455,31 @@ class SeifExploreEnv(gym.Env):
             self.render()
         return observation, float(reward), diverged, False, info
 
+    def _filter_update(self, ranges, bearings, true_ids) -> None:
+        """The filter's measurement update, with the true ids or with ML data association."""
+        if self.associator is None:
+            self.filter.update_trusted(ranges, bearings, true_ids)
+            return
+        ids = self.associator.update(self.filter, ranges, bearings)
+        # scored outside the filter's time: wrong, duplicate or discarded decisions of this step
+        self._association_errors = self.audit.record(self.associator, ids, true_ids)
+
     # -- reward and info -------------------------------------------------------------
     def map_error(self) -> float:
-        """``E_t``: mean over all true landmarks of ``min(error, d_cap)``, unmapped counted as ``d_cap``."""
-        return map_error(self.filter.landmarks, self.world.landmarks, self.filter.landmark_ids, self.reward_config.d_cap)
+        """``E_t``: mean over all true landmarks of ``min(error, d_cap)``, unmapped counted as ``d_cap``.
+
+        With ``data_association="ml"`` the filter's landmarks carry the
+        associator's ids: each is matched to the true landmark it was created
+        from, and only the first landmark made for a true one counts
+        (duplicates do not reduce the error).
+        """
+        ids, estimates = self.filter.landmark_ids, self.filter.landmarks
+        if self.audit is not None:
+            true = self.audit.true_ids(ids)
+            _, first = np.unique(true, return_index=True)
+            keep = first[true[first] >= 0]
+            ids, estimates = true[keep], estimates[keep]
+        return map_error(estimates, self.world.landmarks, ids, self.reward_config.d_cap)
 
     def _log_det_criterion(self) -> float:
         """``-log det Sigma / dims`` over the whole map (unmapped landmarks at the prior ``d_cap^2``).
@@ -493,6 +525,7 @@ class SeifExploreEnv(gym.Env):
             "step_time": step_time,
             "wall_contact": wall,
             "diverged": diverged,
+            "association_errors": self._association_errors,
         }
 
     # -- rendering ------------------------------------------------------------------

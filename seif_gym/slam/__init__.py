@@ -8,7 +8,9 @@ approximation). Models: :class:`VelocityMotionModel` and
 :class:`RangeBearingSensor`.
 """
 
+from seif_gym.slam.association import AssociationAudit, Associator
 from seif_gym.slam.base import SlamFilter, UnknownLandmarkError
+from seif_gym.slam.car_model import AckermannLaserModel
 from seif_gym.slam.eif import EIF
 from seif_gym.slam.ekf import EKF
 from seif_gym.slam.eseif import ESEIF
@@ -29,6 +31,9 @@ def make_filter(name: str, motion, sensor, initial_pose, initial_pose_cov=None, 
 __all__ = [
     "FILTERS",
     "make_filter",
+    "AckermannLaserModel",
+    "AssociationAudit",
+    "Associator",
     "EIF",
     "EKF",
     "ESEIF",

@@ -382,18 +382,21 @@ def conditional_std(landmark_info, count):
 
 @njit(cache=True)
 def blanket_joint_covariance(robot_info, robot_links, landmark_info, neighbour_index, neighbour_info, neighbour_count,
-                             information_vector, mean, block_position, active, targets, with_neighbours):  # fmt: skip
+                             information_vector, mean, block_position, active, targets, neighbour_limit):  # fmt: skip
     """Joint covariance of the robot and ``targets`` from a Markov-blanket block.
 
-    The block holds the robot, its ``active`` landmarks, the ``targets`` and,
-    with ``with_neighbours``, every landmark linked to a target in ``Omega``
-    (the targets' own Markov blankets, Probabilistic Robotics section 12.7).
+    The block holds the robot, its ``active`` landmarks, the ``targets`` and
+    the landmarks linked to a target in ``Omega`` (the targets' own Markov
+    blankets, Probabilistic Robotics section 12.7): all of them for
+    ``neighbour_limit < 0``, else the ``neighbour_limit`` most strongly linked
+    of each target (largest Frobenius norm of ``Omega_ij``; 0 for none).
     It is factorised once (Cholesky) and solved for the ``3 + 2k`` columns of
     the robot and the targets only. Returns the ``(3 + 2k, 3 + 2k)``
     covariance, robot first, targets in the given order.
     """
     # collect the nodes: active, then targets, then the targets' neighbours (each once)
     capacity = active.shape[0] + targets.shape[0]
+    with_neighbours = neighbour_limit != 0
     if with_neighbours:
         for i in targets:
             capacity += neighbour_count[i]
@@ -411,7 +414,18 @@ def blanket_joint_covariance(robot_info, robot_links, landmark_info, neighbour_i
             count += 1
     if with_neighbours:
         for i in targets:
-            for slot in range(neighbour_count[i]):
+            links = neighbour_count[i]
+            order = np.arange(links)
+            if 0 <= neighbour_limit < links:
+                strength = np.empty(links)
+                for slot in range(links):
+                    total = 0.0
+                    for a in range(2):
+                        for b in range(2):
+                            total += neighbour_info[i, slot, a, b] ** 2
+                    strength[slot] = -total
+                order = np.argsort(strength)[:neighbour_limit]
+            for slot in order:
                 j = neighbour_index[i, slot]
                 if block_position[j] < 0:
                     block_position[j] = count

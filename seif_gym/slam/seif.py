@@ -507,24 +507,33 @@ class SEIF(SlamFilter):
         nodes = np.concatenate([self._active, np.array(outside, dtype=np.int64)])
         return blanket_covariances(store, nodes, indices)
 
-    def local_joint_covariance(self, landmark_indices, neighbours: bool = True) -> FloatArray:
+    def local_joint_covariance(self, landmark_indices, neighbours: bool | int = True) -> FloatArray:
         """Joint covariance of the pose and the landmarks at ``landmark_indices``, in constant time.
 
         Returns the ``(3 + 2k, 3 + 2k)`` covariance over ``(x, y, theta,
         m_i1, m_i2, ...)`` (the pose-landmark cross-covariances included, which
         an innovation covariance ``H Sigma H^T + Q`` needs) from the Markov
         blanket: the information block over the robot, its active landmarks,
-        the requested landmarks and, with ``neighbours``, the landmarks linked
-        to them (Probabilistic Robotics section 12.7), conditioned on the rest
-        of the map. Never a dense inverse of ``Omega``: one Cholesky factor of
-        the block, solved for the requested columns only.
+        the requested landmarks and the landmarks linked to them
+        (Probabilistic Robotics section 12.7), conditioned on the rest of the
+        map. ``neighbours``: ``True`` all linked landmarks, ``False`` none, an
+        int ``n`` the ``n`` most strongly linked of each requested landmark
+        (a block of bounded size however many links accumulate). Never a
+        dense inverse of ``Omega``: one Cholesky factor of the block, solved
+        for the requested columns only.
         """
         indices = self._check_landmark_indices(landmark_indices)
+        if isinstance(neighbours, (bool, np.bool_)):
+            limit = -1 if neighbours else 0
+        elif isinstance(neighbours, (int, np.integer)) and neighbours >= 0:
+            limit = int(neighbours)
+        else:
+            raise ValueError(f"neighbours must be a bool or a non-negative int, got {neighbours!r}")
         store = self._store
         return _kernels.blanket_joint_covariance(
             store.robot_info, store.robot_links, store.landmark_info,
             store.neighbour_index, store.neighbour_info, store.neighbour_count,
-            store.information_vector, store.mean, store.block_position, self._active, indices, bool(neighbours),
+            store.information_vector, store.mean, store.block_position, self._active, indices, limit,
         )  # fmt: skip
 
     def landmark_std(self) -> FloatArray:

@@ -1,0 +1,151 @@
+"""The filter robustness harness (``seif_gym.evaluate``) and the adversarial reward (``agents.adversary``)."""
+
+from __future__ import annotations
+
+import csv
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+import seif_gym  # noqa: F401
+from seif_gym.episodes import Episode, EpisodeRecorder, replay
+from seif_gym.evaluate import (
+    RESULT_COLUMNS,
+    TIMESERIES_KEYS,
+    FilterSpec,
+    _map_nees,
+    evaluate,
+    main,
+    parse_filter,
+)
+from seif_gym.slam import FILTERS
+
+STEPS = 20
+
+
+@pytest.fixture(scope="module")
+def harness_run(tmp_path_factory):
+    out = tmp_path_factory.mktemp("robustness")
+    argv = ["--policies", "random", "--layouts", "uniform", "--seeds", "1", "--seed", "3", "--steps", str(STEPS),
+            "--filters", "seif-k2,seif-k8,ekf", "--out", str(out)]  # fmt: skip
+    assert main(argv) == 0
+    return out
+
+
+def test_harness_writes_the_documented_files_and_csv_schema(harness_run):
+    out = harness_run
+    for name in ("results.csv", "timeseries.npz", "map_rmse.png", "pose_rmse.png", "nees.png", "time_per_step.png",
+                 "summary.md", "config.json", "episodes/random_uniform_3.npz"):  # fmt: skip
+        assert (out / name).is_file(), name
+    with (out / "results.csv").open() as handle:
+        reader = csv.DictReader(handle)
+        assert tuple(reader.fieldnames) == RESULT_COLUMNS
+        rows = list(reader)
+    assert [row["filter"] for row in rows] == ["seif-k2", "seif-k8", "ekf"]
+    assert {(row["policy"], row["layout"], row["seed"]) for row in rows} == {("random", "uniform", "3")}
+    for row in rows:
+        assert int(row["steps"]) == STEPS
+        assert row["diverged"] in ("0", "1")
+        for column in ("final_map_error", "pose_rmse", "anees_pose", "us_per_step_median"):
+            assert np.isfinite(float(row[column])), column
+    with np.load(out / "timeseries.npz", allow_pickle=False) as data:
+        assert set(data.files) == set(TIMESERIES_KEYS)
+        assert data["pose_nees"].shape == (3, STEPS + 1)
+        assert data["step_seconds"].shape == (3, STEPS)
+        assert list(data["filter"]) == ["seif-k2", "seif-k8", "ekf"]
+    # the env's own filter (seif-k8) replayed reproduces the recorded map error exactly
+    episode = Episode.load(out / "episodes/random_uniform_3.npz")
+    assert float(rows[1]["final_map_error"]) == float(episode.map_errors[-1])
+    summary = (out / "summary.md").read_text()
+    assert "| seif-k2 |" in summary and "| random | ekf |" in summary
+
+
+def _logging(cls, logs):
+    """A subclass of ``cls`` that logs the inputs of every predict and update (one log per instance)."""
+
+    class Logged(cls):
+        def __init__(self, *args, **kwargs):
+            self.log = []
+            logs.append(self.log)
+            super().__init__(*args, **kwargs)
+
+        def predict(self, control, dt):
+            self.log.append(("predict", np.array(control, dtype=float), float(dt)))
+            super().predict(control, dt)
+
+        def update(self, ranges, bearings, ids):
+            self.log.append(("update", np.array(ranges, dtype=float), np.array(bearings, dtype=float), np.array(ids)))
+            super().update(ranges, bearings, ids)
+
+    return Logged
+
+
+def test_replayed_filters_see_exactly_the_recorded_data(tmp_path):
+    logs = {name: [] for name in ("seif-k2", "seif-exact", "eif", "ekf")}
+    specs = [
+        FilterSpec("seif-k2", "seif", {"max_active": 2}, _logging(FILTERS["seif"], logs["seif-k2"])),
+        FilterSpec("seif-exact", "seif", {"max_active": 8, "mean_recovery": "exact"}, _logging(FILTERS["seif"], logs["seif-exact"])),
+        FilterSpec("eif", "eif", {}, _logging(FILTERS["eif"], logs["eif"])),
+        FilterSpec("ekf", "ekf", {}, _logging(FILTERS["ekf"], logs["ekf"])),
+    ]
+    rows, series = evaluate(["random"], ["loop"], [5], 15, specs, episode_dir=tmp_path)
+    assert [row["filter"] for row in rows] == [spec.label for spec in specs]
+    episode = Episode.load(tmp_path / "random_loop_5.npz")
+    expected = [("update", *episode.measurements(0))]
+    for t in range(episode.steps):
+        expected.append(("predict", episode.executed_controls[t], episode.dt))
+        expected.append(("update", *episode.measurements(t + 1)))
+    assert sum(len(episode.measurements(t)[0]) for t in range(episode.steps + 1)) > 0
+    for name, instances in logs.items():
+        log = instances[-1]  # the last instance replayed the recorded episode (earlier ones: warm-up)
+        assert len(log) == len(expected), name
+        for got, want in zip(log, expected):
+            assert got[0] == want[0]
+            for a, b in zip(got[1:], want[1:]):
+                np.testing.assert_array_equal(np.asarray(a), np.asarray(b), err_msg=name)
+    assert len(series) == len(specs)
+
+
+def test_relative_nees_is_anchor_free():
+    rng = np.random.default_rng(1)
+    m = 5
+    basis = rng.normal(size=(2 * m, 2 * m))
+    cov = basis @ basis.T + np.eye(2 * m)
+    truth, estimate = rng.normal(size=(m, 2)), rng.normal(size=(m, 2))
+    global_nees, relative_nees = _map_nees(truth, estimate, cov)
+    error = (truth - estimate).reshape(-1)
+    assert global_nees == pytest.approx(error @ np.linalg.solve(cov, error))
+    chain = np.zeros((2 * (m - 1), 2 * m))  # consecutive pairs instead of the anchor 0
+    for i in range(1, m):
+        chain[2 * i - 2 : 2 * i, 2 * i - 2 : 2 * i] = -np.eye(2)
+        chain[2 * i - 2 : 2 * i, 2 * i : 2 * i + 2] = np.eye(2)
+    d = chain @ error
+    assert relative_nees == pytest.approx(d @ np.linalg.solve(chain @ cov @ chain.T, d))
+
+
+def test_parse_filter():
+    assert parse_filter("seif-k4").options == {"max_active": 4}
+    assert parse_filter("seif-exact").options == {"max_active": 8, "mean_recovery": "exact"}
+    assert parse_filter("ekf").filter == "ekf"
+    with pytest.raises(ValueError):
+        parse_filter("seif")
+
+
+def test_adversary_return_is_the_final_gap():
+    from agents.adversary import SeifVsEkfReward
+
+    env = EpisodeRecorder(SeifVsEkfReward(gym.make("SeifExplore-v0", max_episode_steps=40)))
+    _, info = env.reset(seed=11)
+    rng = np.random.default_rng(11)
+    total, done = 0.0, False
+    while not done:
+        _, reward, terminated, truncated, info = env.step(rng.uniform([0.3, -1.0], [1.0, 1.0]))
+        total += reward
+        done = terminated or truncated
+    episode = env.episode
+    ekf = replay(episode, "ekf").map_errors  # the shadow EKF is the replayed EKF, bit for bit
+    assert info["ekf_map_error"] == ekf[-1]
+    expected = (episode.map_errors[-1] - ekf[-1]) - (episode.map_errors[0] - ekf[0])
+    assert total == pytest.approx(expected, abs=1e-12)
+    assert info["map_error_gap"] == episode.map_errors[-1] - ekf[-1]

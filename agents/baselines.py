@@ -58,6 +58,8 @@ reads as floats in ``[0, 1]``. Cell ``(i, j)`` has its centre
 
 from __future__ import annotations
 
+from abc import ABC, abstractmethod
+
 import copy
 import math
 import time
@@ -217,7 +219,7 @@ class _Raster:
 
 
 # -- the interface ---------------------------------------------------------------------------------
-class Agent:
+class Agent(ABC):
     """Base class of the baselines: SB3's ``predict`` over per-env ``_act``.
 
     Subclasses implement :meth:`_act` for one (unbatched) observation and,
@@ -247,9 +249,9 @@ class Agent:
         """Fresh memory of one env at an episode start (``None``: memoryless)."""
         return None
 
+    @abstractmethod
     def _act(self, observation: Observation, index: int) -> np.ndarray:
         """Action ``(2,)`` in ``[-1, 1]`` for the unbatched ``observation`` of env ``index``."""
-        raise NotImplementedError
 
     def _state(self, index: int) -> Any:
         if index not in self._states:

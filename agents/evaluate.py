@@ -201,6 +201,10 @@ class SB3Agent(Agent):
         action, state = self.model.predict(observation, state=state, episode_start=episode_start, deterministic=deterministic)
         return np.asarray(action, dtype=np.float32), state
 
+    def _act(self, observation: Mapping[str, np.ndarray], index: int) -> np.ndarray:
+        """One unbatched observation (the model is stateless across envs)."""
+        return self.predict(observation, deterministic=True)[0]
+
     def __repr__(self) -> str:
         return f"SB3Agent({str(self.path)!r}, vecnormalize={self.vecnormalize is not None})"
 

@@ -436,26 +436,6 @@ class ESEIF(SEIF):
             return None
         return candidates[chosen]
 
-    def _incorporate(self, ranges: FloatArray, bearings: FloatArray, indices: IndexArray) -> None:
-        """``SEIF.md`` section 2 with these measurements; their landmarks become active."""
-        if len(indices) == 0:
-            return
-        store = self._store
-        if self._compiled:
-            _kernels.measurement_update(
-                store.robot_info, store.robot_links, store.landmark_info,
-                store.information_vector, store.mean, indices, ranges, bearings, self._measurement_info,
-            )  # fmt: skip
-        else:
-            omega, xi, mu = store.gather(indices)
-            omega, xi = measurement_update(omega, xi, mu, ranges, bearings, self._measurement_info)
-            store.scatter(indices, omega, xi)
-        self._last_observed[indices] = self._update_count
-        newly_active = indices[~self._is_active[indices]]
-        if len(newly_active):
-            self._active = np.concatenate([self._active, newly_active])
-            self._is_active[newly_active] = True
-
     def _marginalize_robot(self) -> None:
         """Step (c): Schur complement over the robot, on the block of the robot and ``Gamma``."""
         store = self._store

@@ -83,6 +83,8 @@ def _sweep(coverage, resolution, half_arena, x, y, theta, max_range, half_fov):
     for i in range(lo_i, hi_i):
         cx = (i + 0.5) * resolution - half_arena - x
         for j in range(lo_j, hi_j):
+            if coverage[i, j]:
+                continue  # already swept: nothing to decide
             cy = (j + 0.5) * resolution - half_arena - y
             if cx * cx + cy * cy > r2:
                 continue
@@ -231,7 +233,7 @@ class BeliefEncoder:
         x, y, theta = float(pose[0]), float(pose[1]), float(pose[2])
         landmarks = filt.landmarks
         nearest = self.nearest(pose, landmarks)
-        pose_cov, landmark_covs = filt.local_marginals(nearest)
+        pose_cov, landmark_covs = filt.local_marginals_trusted(nearest)
         self.pose_covariance = pose_cov
         scale = config.std_scale
         pose_obs = np.empty(len(POSE_FEATURES), dtype=np.float32)

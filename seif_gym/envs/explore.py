@@ -421,7 +421,7 @@ class SeifExploreEnv(gym.Env):
         action = np.asarray(action, dtype=np.float64)
         if action.shape != (2,):
             raise ValueError(f"action must have shape (2,), got {action.shape}")
-        if not np.all(np.isfinite(action)):
+        if not (math.isfinite(action[0]) and math.isfinite(action[1])):
             raise ValueError(f"action must be finite, got {action}")
         control = np.clip(action, -1.0, 1.0) * self._action_scale
         dt = self.robot_config.dt

@@ -270,7 +270,10 @@ class SlamFilter(ABC):
         constant-time Markov-blanket approximation. Meant for per-step
         consumers such as the env's observation and data association.
         """
-        indices = self._check_landmark_indices(landmark_indices)
+        return self.local_marginals_trusted(self._check_landmark_indices(landmark_indices))
+
+    def local_marginals_trusted(self, indices: NDArray[np.int64]) -> tuple[FloatArray, FloatArray]:
+        """:meth:`local_marginals` without input checks (valid, distinct int64 state orders)."""
         pose_cov = self._marginal_covariance(np.arange(3))
         covs = np.empty((len(indices), 2, 2))
         for k, index in enumerate(indices.tolist()):

@@ -354,7 +354,7 @@ class SEIF(SlamFilter):
     # -- steps 2-4 ---------------------------------------------------------------
     def _update(self, ranges: FloatArray, bearings: FloatArray, indices: IndexArray, is_new: NDArray[np.bool_]) -> None:
         store = self._store
-        if np.any(is_new):
+        if is_new.any():
             # zero information of their own: the measurement below supplies it (SEIF.md, sensor)
             inverse = getattr(self.sensor, "inverse_trusted", self.sensor.inverse)
             store.add_landmarks(inverse(store.mean[:3], ranges[is_new], bearings[is_new]))
@@ -500,7 +500,10 @@ class SEIF(SlamFilter):
         covariance conditioned on the rest of the map, which is tighter than
         the exact marginal (``pose_covariance``, ``landmark_covariance``).
         """
-        indices = self._check_landmark_indices(landmark_indices)
+        return self.local_marginals_trusted(self._check_landmark_indices(landmark_indices))
+
+    def local_marginals_trusted(self, indices: IndexArray) -> tuple[FloatArray, FloatArray]:
+        """:meth:`local_marginals` without input checks (valid int64 state orders)."""
         store = self._store
         if self._compiled:
             nodes = _kernels.blanket_nodes(self._active, indices, store.block_position)

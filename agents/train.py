@@ -64,6 +64,7 @@ class TrainConfig:
     eval_episodes: int = 10
     checkpoint_freq: int = 250_000
     vec_env: str = "dummy"
+    init_from: str | None = None
     progress_bar: bool = True
     wrapper: str | None = None
     wrapper_kwargs: dict[str, Any] = field(default_factory=dict)
@@ -116,7 +117,13 @@ def _parse_override(text: str) -> tuple[str, Any]:
     key, sep, value = text.partition("=")
     if not sep:
         raise argparse.ArgumentTypeError(f"--hyperparams takes key=value, got {text!r}")
-    return key, yaml.safe_load(value)
+    parsed = yaml.safe_load(value)
+    if isinstance(parsed, str):  # YAML 1.1 reads "1e-4" as a string
+        try:
+            parsed = float(parsed)
+        except ValueError:
+            pass
+    return key, parsed
 
 
 def resolve_config(args: argparse.Namespace) -> TrainConfig:
@@ -148,6 +155,7 @@ def resolve_config(args: argparse.Namespace) -> TrainConfig:
         progress_bar=not args.no_progress_bar,
         wrapper=args.wrapper,
         wrapper_kwargs=json.loads(args.wrapper_kwargs) if args.wrapper_kwargs else {},
+        init_from=args.init_from,
     )
 
 
@@ -204,6 +212,9 @@ def train(config: TrainConfig):
         device="cpu",
         **config.algo_kwargs,
     )
+    if config.init_from:
+        # continue from a saved model's weights, with this run's hyperparameters
+        model.set_parameters(config.init_from, exact_match=True, device="cpu")
     callbacks = [
         CheckpointCallback(
             save_freq=max(config.checkpoint_freq // config.n_envs, 1),
@@ -249,6 +260,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--eval-episodes", type=int, default=10)
     parser.add_argument("--checkpoint-freq", type=int, default=250_000)
     parser.add_argument("--no-progress-bar", action="store_true")
+    parser.add_argument("--init-from", default=None, help="a saved .zip whose weights start this run (fine-tuning)")
     parser.add_argument("--wrapper", default=None,
                         help="module:Class of a gymnasium wrapper applied to every env (training and evaluation), "
                         "e.g. agents.adversary:SeifVsEkfReward")

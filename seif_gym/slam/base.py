@@ -35,6 +35,15 @@ DEFAULT_INITIAL_POSE_COV: FloatArray = np.diag([1e-6, 1e-6, 1e-6])
 DEFAULT_INITIAL_POSE_COV.setflags(write=False)
 
 
+#: Landmark capacity the dense filters (EKF, EIF) allocate at construction; it doubles when exceeded.
+INITIAL_LANDMARK_CAPACITY = 8
+
+
+def symmetrized(matrix: FloatArray) -> FloatArray:
+    """``(A + A^T) / 2`` as a new array (never in place: ``A.T`` aliases ``A``)."""
+    return 0.5 * (matrix + matrix.T)
+
+
 class UnknownLandmarkError(KeyError, ValueError):
     """Raised when a landmark id is not in the filter's map."""
 

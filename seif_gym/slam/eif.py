@@ -26,26 +26,19 @@ import scipy.linalg
 import scipy.sparse
 from numpy.typing import NDArray
 
-from seif_gym.slam.base import SlamFilter
+from seif_gym.slam.base import INITIAL_LANDMARK_CAPACITY, SlamFilter, symmetrized
 from seif_gym.slam.models import wrap_angle
 
 __all__ = ["EIF"]
 
 FloatArray = NDArray[np.float64]
 
-#: Landmark capacity allocated at construction; it doubles when exceeded.
-_INITIAL_LANDMARK_CAPACITY = 8
-
-
-def _symmetrized(matrix: FloatArray) -> FloatArray:
-    """``(A + A^T) / 2`` as a new array (never in place: ``A.T`` aliases ``A``)."""
-    return 0.5 * (matrix + matrix.T)
 
 
 def _spd_inverse(matrix: FloatArray) -> FloatArray:
     """Inverse of a small symmetric positive definite matrix by Cholesky, symmetrized."""
     factor = scipy.linalg.cho_factor(matrix, lower=True, check_finite=False)
-    return _symmetrized(scipy.linalg.cho_solve(factor, np.eye(len(matrix)), check_finite=False))
+    return symmetrized(scipy.linalg.cho_solve(factor, np.eye(len(matrix)), check_finite=False))
 
 
 class EIF(SlamFilter):
@@ -117,7 +110,7 @@ class EIF(SlamFilter):
 
     # -- storage -------------------------------------------------------------
     def _initialize(self, pose: FloatArray, pose_cov: FloatArray) -> None:
-        size = 3 + 2 * _INITIAL_LANDMARK_CAPACITY
+        size = 3 + 2 * INITIAL_LANDMARK_CAPACITY
         self._information: FloatArray = np.zeros((size, size))
         self._info_vector: FloatArray = np.zeros(size)
         self._state_mean: FloatArray = np.zeros(size)
@@ -154,12 +147,12 @@ class EIF(SlamFilter):
         delta, jacobian, motion_noise = self._linearize(mean[:3].copy(), control, dt)
         noise_information = _spd_inverse(motion_noise)
         noise_info_jacobian = noise_information @ jacobian  # R^-1 G
-        old_pose_information = _symmetrized(information[:3, :3] + jacobian.T @ noise_info_jacobian)  # P
+        old_pose_information = symmetrized(information[:3, :3] + jacobian.T @ noise_info_jacobian)  # P
         links = np.empty((dim, 3))  # B: links of the old pose to (x', m)
         links[:3] = -noise_info_jacobian
         links[3:] = information[3:, :3]
         factor = scipy.linalg.cho_factor(old_pose_information, lower=True, check_finite=False)
-        removed = _symmetrized(links @ scipy.linalg.cho_solve(factor, links.T, check_finite=False))  # B P^-1 B^T
+        removed = symmetrized(links @ scipy.linalg.cho_solve(factor, links.T, check_finite=False))  # B P^-1 B^T
 
         # commit
         information[:3, :3] = noise_information - removed[:3, :3]
@@ -263,7 +256,7 @@ class EIF(SlamFilter):
         unit_columns = np.zeros((self._dim, len(state_indices)))
         unit_columns[state_indices, np.arange(len(state_indices))] = 1.0
         columns = scipy.linalg.cho_solve(self._factor(), unit_columns, check_finite=False)
-        return _symmetrized(columns[state_indices])
+        return symmetrized(columns[state_indices])
 
     def _marginal_variances(self) -> FloatArray:
         # diag(Omega^-1) = squared column norms of L^-1 (Omega = L L^T): one triangular solve
@@ -274,7 +267,7 @@ class EIF(SlamFilter):
         return np.einsum("ij,ij->j", inverse_factor, inverse_factor)
 
     def _full_covariance(self) -> FloatArray:
-        return _symmetrized(scipy.linalg.cho_solve(self._factor(), np.eye(self._dim), check_finite=False))
+        return symmetrized(scipy.linalg.cho_solve(self._factor(), np.eye(self._dim), check_finite=False))
 
     def _state_nbytes(self) -> int:
         return self._information.nbytes + self._info_vector.nbytes + self._state_mean.nbytes

@@ -15,20 +15,13 @@ import numpy as np
 import scipy.linalg
 from numpy.typing import NDArray
 
-from seif_gym.slam.base import SlamFilter
+from seif_gym.slam.base import INITIAL_LANDMARK_CAPACITY, SlamFilter, symmetrized
 from seif_gym.slam.models import wrap_angle
 
 __all__ = ["EKF"]
 
 FloatArray = NDArray[np.float64]
 
-#: Landmark capacity allocated at construction; it doubles when exceeded.
-_INITIAL_LANDMARK_CAPACITY = 8
-
-
-def _symmetrized(matrix: FloatArray) -> FloatArray:
-    """``(A + A^T) / 2`` as a new array (never in place: ``A.T`` aliases ``A``)."""
-    return 0.5 * (matrix + matrix.T)
 
 
 class EKF(SlamFilter):
@@ -91,7 +84,7 @@ class EKF(SlamFilter):
 
     # -- storage -------------------------------------------------------------
     def _initialize(self, pose: FloatArray, pose_cov: FloatArray) -> None:
-        size = 3 + 2 * _INITIAL_LANDMARK_CAPACITY
+        size = 3 + 2 * INITIAL_LANDMARK_CAPACITY
         self._state_mean: FloatArray = np.zeros(size)
         self._state_cov: FloatArray = np.zeros((size, size))
         self._state_mean[:3] = pose
@@ -119,7 +112,7 @@ class EKF(SlamFilter):
         dim = self._dim
         mean, cov = self._state_mean, self._state_cov
         delta, jacobian, motion_noise = self._linearize(mean[:3].copy(), control, dt)
-        robot_block = _symmetrized(jacobian @ cov[:3, :3] @ jacobian.T + motion_noise)
+        robot_block = symmetrized(jacobian @ cov[:3, :3] @ jacobian.T + motion_noise)
         robot_map_block = jacobian @ cov[:3, 3:dim]
         mean[:3] += delta
         mean[2] = wrap_angle(float(mean[2]))
@@ -154,7 +147,7 @@ class EKF(SlamFilter):
             own_noise = wrt_measurement @ measurement_cov @ wrt_measurement.transpose(0, 2, 1)
             for k in range(new_count):
                 new_block[2 * k : 2 * k + 2, 2 * k : 2 * k + 2] += own_noise[k]
-            new_block = _symmetrized(new_block)
+            new_block = symmetrized(new_block)
         else:
             new_means = np.empty(0)
             new_cross = np.empty((0, old_dim))
@@ -185,7 +178,7 @@ class EKF(SlamFilter):
             innovation_cov = times_jacobian_transpose(cov_jt_old.T)  # H Sigma H^T, (2m, 2m)
             for k in range(old_count):
                 innovation_cov[2 * k : 2 * k + 2, 2 * k : 2 * k + 2] += measurement_cov
-            factor = scipy.linalg.cho_factor(_symmetrized(innovation_cov), lower=True, check_finite=False)
+            factor = scipy.linalg.cho_factor(symmetrized(innovation_cov), lower=True, check_finite=False)
             cov_jt = np.vstack([cov_jt_old, cov_jt_new])  # Sigma H^T over the augmented state
             gain_transpose = scipy.linalg.cho_solve(factor, cov_jt.T, check_finite=False)  # K^T = S^-1 H Sigma
 
@@ -201,7 +194,7 @@ class EKF(SlamFilter):
         if old_count:
             state_mean[:new_dim] += gain_transpose.T @ innovation.ravel()
             updated = state_cov[:new_dim, :new_dim] - cov_jt @ gain_transpose  # Sigma - K S K^T
-            state_cov[:new_dim, :new_dim] = _symmetrized(updated)
+            state_cov[:new_dim, :new_dim] = symmetrized(updated)
             state_mean[2] = wrap_angle(float(state_mean[2]))
 
     # -- belief ----------------------------------------------------------------

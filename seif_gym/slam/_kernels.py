@@ -183,6 +183,24 @@ def _wrap(angle):
 
 
 @njit(cache=True)
+def range_bearing_jacobian(dx, dy, H):
+    """Fill ``H`` (2, 5) of ``SEIF.md`` (columns x, y, theta, m_x, m_y) for ``d = m - (x, y)``; returns ``q``."""
+    q = dx * dx + dy * dy
+    sqrt_q = np.sqrt(q)
+    H[0, 0] = -dx / sqrt_q
+    H[0, 1] = -dy / sqrt_q
+    H[0, 2] = 0.0
+    H[0, 3] = dx / sqrt_q
+    H[0, 4] = dy / sqrt_q
+    H[1, 0] = dy / q
+    H[1, 1] = -dx / q
+    H[1, 2] = -1.0
+    H[1, 3] = -dy / q
+    H[1, 4] = dx / q
+    return q
+
+
+@njit(cache=True)
 def measurement_update(robot_info, robot_links, landmark_info, information_vector, mean,
                        indices, ranges, bearings, noise_info):  # fmt: skip
     """Fast :func:`seif_gym.slam.seif.measurement_update`, straight into the store."""
@@ -197,19 +215,8 @@ def measurement_update(robot_info, robot_links, landmark_info, information_vecto
         o = 3 + 2 * i
         dx = mean[o] - x
         dy = mean[o + 1] - y
-        q = dx * dx + dy * dy
-        sqrt_q = np.sqrt(q)
-        H[0, 0] = -dx / sqrt_q
-        H[0, 1] = -dy / sqrt_q
-        H[0, 2] = 0.0
-        H[0, 3] = dx / sqrt_q
-        H[0, 4] = dy / sqrt_q
-        H[1, 0] = dy / q
-        H[1, 1] = -dx / q
-        H[1, 2] = -1.0
-        H[1, 3] = -dy / q
-        H[1, 4] = dx / q
-        innovation[0] = ranges[k] - sqrt_q
+        q = range_bearing_jacobian(dx, dy, H)
+        innovation[0] = ranges[k] - np.sqrt(q)
         innovation[1] = _wrap(bearings[k] - (np.arctan2(dy, dx) - theta))
         state[0] = x
         state[1] = y

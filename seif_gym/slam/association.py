@@ -72,6 +72,8 @@ import scipy.stats
 from numba import njit
 from numpy.typing import NDArray
 
+from seif_gym.slam._kernels import range_bearing_jacobian
+
 __all__ = ["Associator", "AssociationStats", "AssociationAudit"]
 
 FloatArray = NDArray[np.float64]
@@ -147,18 +149,8 @@ def _pair_distances(pose, landmarks, joint, noise, ranges, bearings, pair_meas, 
         my = landmarks[s, 1]
         dx = mx - x
         dy = my - y
-        q = dx * dx + dy * dy
+        q = range_bearing_jacobian(dx, dy, H)
         sq = math.sqrt(q)
-        H[0, 0] = -dx / sq
-        H[0, 1] = -dy / sq
-        H[0, 2] = 0.0
-        H[0, 3] = dx / sq
-        H[0, 4] = dy / sq
-        H[1, 0] = dy / q
-        H[1, 1] = -dx / q
-        H[1, 2] = -1.0
-        H[1, 3] = -dy / q
-        H[1, 4] = dx / q
         rows[3] = 3 + 2 * s
         rows[4] = 4 + 2 * s
         for a in range(5):

@@ -36,7 +36,7 @@ default; ``implementation="reference"`` runs the former.
 
 from __future__ import annotations
 
-from typing import Any, ClassVar
+from typing import Any, ClassVar, NamedTuple
 
 import numpy as np
 from numba import njit
@@ -50,6 +50,7 @@ __all__ = [
     "RELOCALIZATION_RCOND",
     "marginalize_robot",
     "marginalize_robot_block",
+    "pose_information",
     "relocalization_pose_information",
     "select_relocalization_landmarks",
 ]
@@ -147,24 +148,39 @@ def relocalization_pose_information(mean, landmark_info, indices, noise_cov):
     pose and landmark columns of ``H`` (``SEIF.md``, range-bearing sensor) at
     the current mean.
     """
-    count = indices.shape[0]
+    offsets = np.empty((indices.shape[0], 2))
+    covariances = np.empty((indices.shape[0], 2, 2))
+    for k in range(indices.shape[0]):
+        i = indices[k]
+        offsets[k, 0] = mean[3 + 2 * i] - mean[0]
+        offsets[k, 1] = mean[4 + 2 * i] - mean[1]
+        a, b, c, d = landmark_info[i, 0, 0], landmark_info[i, 0, 1], landmark_info[i, 1, 0], landmark_info[i, 1, 1]
+        det = a * d - b * c
+        covariances[k, 0, 0], covariances[k, 1, 1] = d / det, a / det
+        covariances[k, 0, 1] = covariances[k, 1, 0] = -0.5 * (b + c) / det
+    return pose_information(offsets, covariances, noise_cov)
+
+
+@njit(cache=True)
+def pose_information(offsets, covariances, noise_cov):
+    """``J_i = H_x^T (Q + H_m P_i H_m^T)^-1 H_x`` for landmarks at ``offsets`` (m, 2) from the robot.
+
+    ``covariances`` (m, 2, 2) are the landmarks' ``P_i``; zero for a landmark
+    first seen in this scan, whose only position information is the scan's.
+    """
+    count = offsets.shape[0]
     out = np.empty((count, 3, 3))
     q00, q01, q11 = noise_cov[0, 0], noise_cov[0, 1], noise_cov[1, 1]
     H_x = np.empty((2, 3))
     for k in range(count):
-        i = indices[k]
-        dx = mean[3 + 2 * i] - mean[0]
-        dy = mean[4 + 2 * i] - mean[1]
+        dx, dy = offsets[k, 0], offsets[k, 1]
         q = dx * dx + dy * dy
         r = np.sqrt(q)
         # H = [H_x | H_m] with H_m = -H_x[:, :2]
         H_x[0, 0], H_x[0, 1], H_x[0, 2] = -dx / r, -dy / r, 0.0
         H_x[1, 0], H_x[1, 1], H_x[1, 2] = dy / q, -dx / q, -1.0
         h00, h01, h10, h11 = dx / r, dy / r, -dy / q, dx / q
-        # P = Omega_ii^-1
-        a, b, c, d = landmark_info[i, 0, 0], landmark_info[i, 0, 1], landmark_info[i, 1, 0], landmark_info[i, 1, 1]
-        det = a * d - b * c
-        p00, p01, p11 = d / det, -0.5 * (b + c) / det, a / det
+        p00, p01, p11 = covariances[k, 0, 0], covariances[k, 0, 1], covariances[k, 1, 1]
         # S = Q + H_m P H_m^T (symmetric 2 x 2), then S^-1
         t00, t01 = h00 * p00 + h01 * p01, h00 * p01 + h01 * p11
         t10, t11 = h10 * p00 + h11 * p01, h10 * p01 + h11 * p11
@@ -254,6 +270,16 @@ def select_relocalization_landmarks(pose_information, count, rcond):
 # ---------------------------------------------------------------------------
 # The filter
 # ---------------------------------------------------------------------------
+class _UpdatePlan(NamedTuple):
+    """How one scan is incorporated (positions index the scan's measurements)."""
+
+    withheld: IndexArray  # z_beta; empty for an ordinary update
+    split: bool  # z_beta also informs the map through the old pose (weights split_weight, 1 - split_weight)
+
+
+_ORDINARY = _UpdatePlan(np.empty(0, dtype=np.int64), False)
+
+
 class ESEIF(SEIF):
     """Exactly Sparse Extended Information Filter SLAM with known correspondences.
 
@@ -267,13 +293,17 @@ class ESEIF(SEIF):
         See :class:`~seif_gym.slam.base.SlamFilter`.
     max_active : int or None, default 8
         Bound ``k`` (at least 2) on the landmarks linked to the robot after
-        each update; ``None`` never sparsifies (the filter is then the exact
-        EIF). See Notes for the one case in which more stay linked.
+        every update; ``None`` never sparsifies (the filter is then the exact
+        EIF).
     relocalization_landmarks : int, default 2
         ``k_beta``: measurements withheld to relocalize the robot, at least 2
         and at most ``max_active``. Fewer leave more room for the active set
         to grow before the next relocalization (each one discards the pose's
         history); more give a better relocalized pose.
+    split_weight : float, default 0.5
+        ``w`` in ``(0, 1)``: the share of a ``z_beta`` measurement's
+        information that goes to the map in a *split* relocalization (see
+        Notes), the rest going to the new pose.
     mean_recovery : {"amortized", "exact"}, default "amortized"
     recovery_landmarks : int, default 8
     implementation : {"compiled", "reference"}, default "compiled"
@@ -282,10 +312,14 @@ class ESEIF(SEIF):
     Attributes
     ----------
     relocalizations : int
-        Sparsifications by relocalization performed so far.
-    deferred_relocalizations : int
-        Updates after which more than ``max_active`` landmarks stayed linked
-        to the robot because no relocalization was possible (see Notes).
+        Sparsifications by relocalization performed so far (split ones included).
+    split_relocalizations : int
+        Those of them that were split (the scan had fewer than two landmarks
+        mapped before it).
+    discarded_measurements : int
+        Measurements left out because no relocalization could keep the bound
+        (a scan of a single landmark, not linked to the robot, while ``k``
+        landmarks are).
 
     Notes
     -----
@@ -337,6 +371,32 @@ class ESEIF(SEIF):
         Gauss-Newton step of the relocalization from the current estimate,
         which the mean recovery that follows computes.
 
+    *Split relocalization*, when ``|Gamma u O| > k`` but fewer than two
+    landmarks of ``K`` can relocalize (typically a scan of landmarks all new
+    to the map): a relocalization needs two landmarks (one range-bearing
+    measurement leaves the rotation about its landmark free), and a new
+    landmark has no information but this scan's. So ``z_beta`` is chosen
+    among *all* the scan's measurements (landmarks of this scan counted with
+    ``P_i = 0``) and each ``z_beta`` measurement is used twice, as in
+    covariance intersection: in (b) with information ``w Q^-1`` (so that a new
+    landmark is initialised through the old pose), in (d) with ``(1 - w)
+    Q^-1``. Treating the two uses as independent is conservative: the stacked
+    measurement ``[z; z]`` has covariance ``[Q, Q; Q, Q]``, and::
+
+        [Q/w, 0; 0, Q/(1-w)] - [Q, Q; Q, Q] = [(1-w)/w, -1; -1, w/(1-w)] (x) Q >= 0
+
+    (the 2 x 2 factor has determinant 0 and positive trace). The map keeps
+    every measurement; the bound holds after the update.
+
+    *Discarded measurements*: only a scan with one measurement, of a
+    landmark not in ``Gamma`` while ``|Gamma| = k``, or a degenerate geometry
+    (``lambda_min(J) < RELOCALIZATION_RCOND lambda_max(J)``, e.g. coincident
+    landmarks), cannot relocalize. Then the measurements of ``Gamma``'s
+    landmarks are kept, and of the others as many as ``k - |Gamma|`` leaves
+    room for (mapped landmarks first, then the nearest); the rest are left
+    out (never added to the map) and counted in ``discarded_measurements``.
+    Leaving data out can only lose information, so this too is conservative.
+
     **Why it is conservative.** Write the information matrix before (c) as
     ``Omega`` and its robot-marginal ``Omega_m'``. Then::
 
@@ -345,25 +405,17 @@ class ESEIF(SEIF):
     so the ESEIF's matrix after (d), ``[0, 0; 0, Omega_m'] + B`` (``B`` the
     ``z_beta`` factors), holds no more information than the EIF's
     ``Omega + B``, which incorporates the same measurements at the same
-    linearization point. Motion updates, measurement updates and
+    linearization point. (For a split relocalization the same holds with the
+    ``w``-weighted factors: the EIF is the limit in which the old and the new
+    pose are constrained to be equal, where the two weighted uses of ``z_beta``
+    add up to one use.) Motion updates, measurement updates and
     marginalization are monotone (a matrix with less information stays below
     one with more), so by induction ``Sigma_ESEIF >= Sigma_EIF`` after every
     step whenever both filters linearize at the same points (exactly so on
     noise-free data). The SEIF's sparsification has no such bound.
-
-    **When no relocalization is possible.** It needs two measurements of
-    landmarks mapped before this scan (a single range-bearing measurement
-    leaves the rotation about the landmark free) and ``max_active >= 2``. If
-    the bound would be exceeded and the scan has fewer (or only a
-    degenerate geometry, ``lambda_min(J) < RELOCALIZATION_RCOND
-    lambda_max(J)``), all measurements are incorporated as ordinary ones:
-    nothing is approximated or lost, but the active set exceeds ``k`` until
-    the next update that can relocalize (which the still-exceeded bound then
-    triggers). ``deferred_relocalizations`` counts these updates; typically
-    the first scans, when every landmark is new.
     """
 
-    OPTIONS: ClassVar[dict[str, Any]] = {**SEIF.OPTIONS, "relocalization_landmarks": 2}
+    OPTIONS: ClassVar[dict[str, Any]] = {**SEIF.OPTIONS, "relocalization_landmarks": 2, "split_weight": 0.5}
 
     def _check_options(self, options: dict[str, Any]) -> None:
         super()._check_options(options)
@@ -379,33 +431,56 @@ class ESEIF(SEIF):
             raise ValueError(f"relocalization_landmarks must be at least 2, got {count}")
         if max_active is not None and count > max_active:
             raise ValueError(f"relocalization_landmarks ({count}) must not exceed max_active ({max_active})")
+        weight = options["split_weight"]
+        if isinstance(weight, bool) or not isinstance(weight, (int, float, np.integer, np.floating)):
+            raise TypeError(f"split_weight must be a number, got {type(weight).__name__}")
+        if not 0.0 < weight < 1.0:
+            raise ValueError(f"split_weight must lie strictly between 0 and 1, got {weight!r}")
 
     def _initialize(self, pose: FloatArray, pose_cov: FloatArray) -> None:
         super()._initialize(pose, pose_cov)
         self.relocalization_landmarks = int(self.options["relocalization_landmarks"])
+        self.split_weight = float(self.options["split_weight"])
         self.relocalizations = 0
-        self.deferred_relocalizations = 0
+        self.split_relocalizations = 0
+        self.discarded_measurements = 0
+        self._plan = _ORDINARY
 
     # -- one update ----------------------------------------------------------------
+    def update_trusted(self, ranges, bearings, ids) -> None:
+        """:meth:`update` without input checks; plans the update (and what to leave out) first."""
+        plan, kept = self._plan_update(ranges, bearings, ids)
+        if kept is not None:
+            ranges, bearings, ids = ranges[kept], bearings[kept], ids[kept]
+        self._plan = plan
+        try:
+            super().update_trusted(ranges, bearings, ids)
+        finally:
+            self._plan = _ORDINARY
+        if kept is not None:
+            self.discarded_measurements += len(kept) - int(np.count_nonzero(kept))
+
     def _update(self, ranges: FloatArray, bearings: FloatArray, indices: IndexArray, is_new: NDArray[np.bool_]) -> None:
         if np.any(is_new):
             self._add_landmarks(ranges[is_new], bearings[is_new])
         self._update_count += 1
-        withheld = self._plan_relocalization(indices, is_new)
-        if withheld is None:
+        withheld, split = self._plan
+        if len(withheld) == 0:
             self._incorporate(ranges, bearings, indices)
             self._recover_mean()
-            if self.max_active is not None and len(self._active) > self.max_active:
-                self.deferred_relocalizations += 1
             return
         kept = np.ones(len(indices), dtype=bool)
         kept[withheld] = False
         self._incorporate(ranges[kept], bearings[kept], indices[kept])  # (b)
+        if split:
+            self._incorporate(ranges[withheld], bearings[withheld], indices[withheld], self.split_weight)
         self._recover_mean()
         self._marginalize_robot()  # (c)
-        self._relocalize(ranges[withheld], bearings[withheld], indices[withheld])  # (d)
+        relocalization_weight = 1.0 - self.split_weight if split else 1.0
+        self._relocalize(ranges[withheld], bearings[withheld], indices[withheld], relocalization_weight)  # (d)
         self._recover_mean()
         self.relocalizations += 1
+        self.split_relocalizations += int(split)
 
     def _add_landmarks(self, ranges: FloatArray, bearings: FloatArray) -> None:
         """Append new landmarks with zero information at the inverse sensor model's positions."""
@@ -417,24 +492,47 @@ class ESEIF(SEIF):
             self._last_observed = np.concatenate([self._last_observed, np.zeros(grow, dtype=np.int64)])
             self._is_active = np.concatenate([self._is_active, np.zeros(grow, dtype=bool)])
 
-    def _plan_relocalization(self, indices: IndexArray, is_new: NDArray[np.bool_]) -> IndexArray | None:
-        """Positions in the scan of ``z_beta`` (step a), or ``None`` for an ordinary update."""
-        if self.max_active is None:
-            return None
-        newly_active = int(np.count_nonzero(~self._is_active[indices]))
-        if len(self._active) + newly_active <= self.max_active:
-            return None
-        candidates = np.flatnonzero(~is_new)
-        if len(candidates) < 2:
-            return None
+    def _plan_update(
+        self, ranges: FloatArray, bearings: FloatArray, ids: NDArray[np.int64]
+    ) -> tuple[_UpdatePlan, NDArray[np.bool_] | None]:
+        """Step (a): the plan of this update, and the mask of measurements to keep (``None``: all)."""
+        if self.max_active is None or len(ids) == 0:
+            return _ORDINARY, None
+        indices = np.array([self._id_to_index.get(i, -1) for i in ids.tolist()], dtype=np.int64)
+        mapped = indices >= 0
+        active = np.zeros(len(ids), dtype=bool)
+        active[mapped] = self._is_active[indices[mapped]]
+        if len(self._active) + int(np.count_nonzero(~active)) <= self.max_active:
+            return _ORDINARY, None
         store = self._store
-        information = relocalization_pose_information(
-            store.mean, store.landmark_info, indices[candidates], self._measurement_cov
-        )
+        # the pose information of each measurement, landmarks new to the map with P = 0
+        pose = store.mean[:3]
+        offsets = np.empty((len(ids), 2))
+        offsets[:, 0] = ranges * np.cos(pose[2] + bearings)
+        offsets[:, 1] = ranges * np.sin(pose[2] + bearings)
+        covariances = np.zeros((len(ids), 2, 2))
+        for k in np.flatnonzero(mapped):
+            i = indices[k]
+            offsets[k] = store.mean[3 + 2 * i : 5 + 2 * i] - pose[:2]
+            covariances[k] = np.linalg.inv(store.landmark_info[i])
+        information = pose_information(offsets, covariances, self._measurement_cov)
+        candidates = np.flatnonzero(mapped)
+        if len(candidates) >= 2:  # Walter et al.'s relocalization
+            chosen = select_relocalization_landmarks(
+                information[candidates], self.relocalization_landmarks, RELOCALIZATION_RCOND
+            )
+            if len(chosen):
+                return _UpdatePlan(candidates[chosen], False), None
         chosen = select_relocalization_landmarks(information, self.relocalization_landmarks, RELOCALIZATION_RCOND)
-        if len(chosen) == 0:
-            return None
-        return candidates[chosen]
+        if len(chosen):  # split relocalization
+            return _UpdatePlan(np.sort(chosen), True), None
+        # no relocalization possible: keep what fits in the bound
+        room = self.max_active - len(self._active)
+        others = np.flatnonzero(~active)
+        order = np.lexsort((ranges[others], ~mapped[others]))  # mapped first, then the nearest
+        kept = active.copy()
+        kept[others[order[:room]]] = True
+        return _ORDINARY, kept
 
     def _marginalize_robot(self) -> None:
         """Step (c): Schur complement over the robot, on the block of the robot and ``Gamma``."""
@@ -460,6 +558,6 @@ class ESEIF(SEIF):
         self._is_active[block] = False
         self._active = np.empty(0, dtype=np.int64)
 
-    def _relocalize(self, ranges: FloatArray, bearings: FloatArray, indices: IndexArray) -> None:
+    def _relocalize(self, ranges: FloatArray, bearings: FloatArray, indices: IndexArray, weight: float) -> None:
         """Step (d): the ``z_beta`` factors on the new pose, which has no information before them."""
-        self._incorporate(ranges, bearings, indices)
+        self._incorporate(ranges, bearings, indices, weight)

@@ -370,19 +370,26 @@ class SEIF(SlamFilter):
         self._recover_mean()
         self._sparsify()
 
-    def _incorporate(self, ranges: FloatArray, bearings: FloatArray, indices: IndexArray) -> None:
-        """``SEIF.md`` section 2 with these measurements; their landmarks become active."""
+    def _incorporate(
+        self, ranges: FloatArray, bearings: FloatArray, indices: IndexArray, weight: float = 1.0
+    ) -> None:
+        """``SEIF.md`` section 2 with these measurements; their landmarks become active.
+
+        ``weight`` scales the measurement information ``Q^-1`` (the ESEIF's
+        split relocalization uses one measurement twice, with weights that sum to 1).
+        """
         if len(indices) == 0:
             return
         store = self._store
+        measurement_info = self._measurement_info if weight == 1.0 else weight * self._measurement_info
         if self._compiled:
             _kernels.measurement_update(
                 store.robot_info, store.robot_links, store.landmark_info,
-                store.information_vector, store.mean, indices, ranges, bearings, self._measurement_info,
+                store.information_vector, store.mean, indices, ranges, bearings, measurement_info,
             )  # fmt: skip
         else:
             omega, xi, mu = store.gather(indices)
-            omega, xi = measurement_update(omega, xi, mu, ranges, bearings, self._measurement_info)
+            omega, xi = measurement_update(omega, xi, mu, ranges, bearings, measurement_info)
             store.scatter(indices, omega, xi)
         self._last_observed[indices] = self._update_count
         newly_active = indices[~self._is_active[indices]]

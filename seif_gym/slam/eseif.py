@@ -19,6 +19,13 @@ past its bound ``k`` it *sparsifies by relocalization*:
    applied to the marginalized matrix). The new pose is linked to the
    ``z_beta`` landmarks only.
 
+A scan with fewer than two landmarks mapped before it cannot relocalize
+this way; it relocalizes by a *split*: two of its measurements inform both the
+map (through the old pose) and the new pose, with information weights ``w``
+and ``1 - w``, which covariance intersection shows to be conservative. Only a
+lone measurement beyond the bound is left out. The bound holds after every
+update (see :class:`ESEIF`, Notes).
+
 Every step is exact Gaussian inference except that the information the
 marginalized pose carried about the *current* pose (odometry and past
 measurements, given the map) is discarded, and ``z_beta`` informs only the new

@@ -31,10 +31,16 @@ Extra ``info`` keys: ``ekf_map_error`` (``E_t^EKF``), ``map_error_gap``
 (``G_t``) and, with ``nees_weight > 0``, ``seif_pose_nees``.
 
 Training (the policy still observes only the SEIF's belief; only the reward
-changes)::
+changes). The shipped ``agents/policies/ppo_adversary.zip`` is the 200 k-step
+checkpoint of (see ``docs/robustness.md``)::
 
     python -m agents.train --algo ppo --env SeifExplore-v0 \\
-        --wrapper agents.adversary:SeifVsEkfReward --out runs/adversary
+        --init-from agents/policies/ppo_seif_explore.zip \\
+        --wrapper agents.adversary:SeifVsEkfReward --wrapper-kwargs '{"nees_weight": 0.01}' \\
+        --hyperparams learning_rate=1e-4 --timesteps 250000 --out runs/adversary_nees --seed 5
+
+From scratch and with the gap alone (``nees_weight = 0``) PPO learned to
+hardly move: the gap is zero for a robot that sees little.
 
 >>> import gymnasium as gym
 >>> import seif_gym

@@ -32,10 +32,10 @@ Extra ``info`` keys: ``ekf_map_error`` (``E_t^EKF``), ``map_error_gap``
 
 Training (the policy still observes only the SEIF's belief; only the reward
 changes). The shipped ``agents/policies/ppo_adversary.zip`` is the 200 k-step
-checkpoint of (see ``docs/robustness.md``)::
+checkpoint of (``ppo_v1.zip``: the exploring policy shipped until commit 55db0f1, see ``docs/robustness.md``)::
 
     python -m agents.train --algo ppo --env SeifExplore-v0 \\
-        --init-from agents/policies/ppo_seif_explore.zip \\
+        --init-from ppo_v1.zip \\
         --wrapper agents.adversary:SeifVsEkfReward --wrapper-kwargs '{"nees_weight": 0.01}' \\
         --hyperparams learning_rate=1e-4 --timesteps 250000 --out runs/adversary_nees --seed 5
 

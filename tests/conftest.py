@@ -10,3 +10,21 @@ import os
 
 for _name in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_name, "1")
+
+
+import numpy as np  # noqa: E402  (after the BLAS settings above)
+import pytest  # noqa: E402
+
+from seif_gym.slam import RangeBearingSensor, VelocityMotionModel  # noqa: E402
+from seif_gym.slam.simulation import loop_controls, loop_start_pose, ring_landmarks, simulate_run  # noqa: E402
+
+
+@pytest.fixture(scope="session")
+def ring_loop_run():
+    """A noisy 300-step run (dt 0.1) around a ring of 40 landmarks that closes its loop (SEIF and ESEIF tests)."""
+    rng = np.random.default_rng(7)
+    motion = VelocityMotionModel()
+    sensor = RangeBearingSensor(sigma_range=0.1, sigma_bearing=np.radians(1.0), max_range=5.0)
+    landmarks = ring_landmarks(40, 6.0, 12.0, rng)
+    run = simulate_run(motion, sensor, landmarks, loop_controls(300, 0.1, radius=9.0), 0.1, loop_start_pose(9.0), rng)
+    return motion, sensor, run

@@ -48,17 +48,6 @@ from seif_gym.slam.simulation import loop_controls, loop_start_pose, pose_nees, 
 DT = 0.1
 
 
-@pytest.fixture(scope="module")
-def loop_run():
-    """A noisy 300-step run around a ring of 40 landmarks that closes its loop."""
-    rng = np.random.default_rng(7)
-    motion = VelocityMotionModel()
-    sensor = RangeBearingSensor(sigma_range=0.1, sigma_bearing=np.radians(1.0), max_range=5.0)
-    landmarks = ring_landmarks(40, 6.0, 12.0, rng)
-    run = simulate_run(motion, sensor, landmarks, loop_controls(300, DT, radius=9.0), DT, loop_start_pose(9.0), rng)
-    return motion, sensor, run
-
-
 def step(filt, run, t):
     filt.predict(run.controls[t], run.dt)
     filt.update(run.ranges[t], run.bearings[t], run.ids[t])
@@ -84,8 +73,8 @@ def robot_linked_ids(filt) -> set[int]:
 # the active bound
 # ---------------------------------------------------------------------------
 @pytest.mark.parametrize("max_active", [2, 3, 8])
-def test_at_most_k_robot_links_after_every_update(loop_run, max_active):
-    motion, sensor, run = loop_run
+def test_at_most_k_robot_links_after_every_update(ring_loop_run, max_active):
+    motion, sensor, run = ring_loop_run
     filt = ESEIF(motion, sensor, run.initial_pose, max_active=max_active)
     for t in range(run.steps):
         relocalizations = filt.relocalizations
@@ -281,9 +270,9 @@ def test_eseif_is_conservative_and_seif_is_not(noise_free_comparison):
     )
 
 
-def test_each_relocalization_matches_the_full_matrix_equations(loop_run):
+def test_each_relocalization_matches_the_full_matrix_equations(ring_loop_run):
     """One update that relocalizes, against ``Omega`` and ``xi`` built densely on the whole state."""
-    motion, sensor, run = loop_run
+    motion, sensor, run = ring_loop_run
     filt = ESEIF(motion, sensor, run.initial_pose, max_active=3, mean_recovery="exact")
     feed(filt, run, steps=20)
     Q_inv = np.linalg.inv(sensor.noise_covariance)
@@ -466,8 +455,8 @@ def test_relocalization_prefers_landmarks_spread_in_bearing():
 
 
 @pytest.mark.parametrize("mean_recovery", ["amortized", "exact"])
-def test_compiled_filter_equals_reference_filter(loop_run, mean_recovery):
-    motion, sensor, run = loop_run
+def test_compiled_filter_equals_reference_filter(ring_loop_run, mean_recovery):
+    motion, sensor, run = ring_loop_run
     options = dict(max_active=3, mean_recovery=mean_recovery)
     compiled = feed(ESEIF(motion, sensor, run.initial_pose, **options), run, steps=120)
     reference = feed(ESEIF(motion, sensor, run.initial_pose, implementation="reference", **options), run, steps=120)
@@ -477,8 +466,8 @@ def test_compiled_filter_equals_reference_filter(loop_run, mean_recovery):
     np.testing.assert_array_equal(compiled.active_landmarks, reference.active_landmarks)
 
 
-def test_without_a_bound_the_eseif_is_the_eif(loop_run):
-    motion, sensor, run = loop_run
+def test_without_a_bound_the_eseif_is_the_eif(ring_loop_run):
+    motion, sensor, run = ring_loop_run
     eseif = feed(ESEIF(motion, sensor, run.initial_pose, max_active=None, mean_recovery="exact"), run, steps=150)
     eif = feed(EIF(motion, sensor, run.initial_pose), run, steps=150)
     assert eseif.relocalizations == 0
@@ -487,7 +476,7 @@ def test_without_a_bound_the_eseif_is_the_eif(loop_run):
     np.testing.assert_allclose(eseif.mean, eif.mean, rtol=1e-8, atol=1e-9)
 
 
-def test_amortized_recovery_converges_to_the_exact_mean(loop_run):
+def test_amortized_recovery_converges_to_the_exact_mean(ring_loop_run):
     """Coordinate descent converges on the ESEIF's matrix too, but slowly.
 
     Marginalizing the robot links the landmarks of each active set strongly,
@@ -496,7 +485,7 @@ def test_amortized_recovery_converges_to_the_exact_mean(loop_run):
     error by a factor of about 0.73, against 0.13 for SEIF(4) on the same
     data. Per-step recovery still keeps the estimate close (checked first).
     """
-    motion, sensor, run = loop_run
+    motion, sensor, run = ring_loop_run
     filt = feed(ESEIF(motion, sensor, run.initial_pose, max_active=4), run)
     exact = filt.exact_mean()
     errors = [np.abs(filt.mean - exact).max()]
@@ -512,8 +501,8 @@ def test_amortized_recovery_converges_to_the_exact_mean(loop_run):
 # ---------------------------------------------------------------------------
 # constant time, sparse, and usable everywhere the other filters are
 # ---------------------------------------------------------------------------
-def test_steps_never_touch_the_whole_map(loop_run, monkeypatch):
-    motion, sensor, run = loop_run
+def test_steps_never_touch_the_whole_map(ring_loop_run, monkeypatch):
+    motion, sensor, run = ring_loop_run
     filt = feed(ESEIF(motion, sensor, run.initial_pose, max_active=6), run, steps=30)
 
     def forbidden(*args, **kwargs):

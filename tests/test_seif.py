@@ -17,21 +17,8 @@ from seif_gym.slam.seif import (
     recover_mean_amortized,
     sparsify,
 )
-from seif_gym.slam.simulation import loop_controls, loop_start_pose, ring_landmarks, simulate_run
 
 DT = 0.1
-
-
-@pytest.fixture(scope="module")
-def loop_run():
-    """A 300-step run around a ring of 40 landmarks that closes its loop."""
-    rng = np.random.default_rng(7)
-    motion = VelocityMotionModel()
-    sensor = RangeBearingSensor(sigma_range=0.1, sigma_bearing=np.radians(1.0), max_range=5.0)
-    landmarks = ring_landmarks(40, 6.0, 12.0, rng)
-    controls = loop_controls(300, DT, radius=9.0)
-    run = simulate_run(motion, sensor, landmarks, controls, DT, loop_start_pose(9.0), rng)
-    return motion, sensor, run
 
 
 def feed(filt, run, steps=None):
@@ -63,9 +50,9 @@ def assert_stores_equal(a: InformationStore, b: InformationStore, rtol=1e-12) ->
 
 
 @pytest.fixture(scope="module")
-def busy_seif(loop_run):
+def busy_seif(ring_loop_run):
     """A SEIF whose store has robot links, landmark links and many landmarks."""
-    motion, sensor, run = loop_run
+    motion, sensor, run = ring_loop_run
     return feed(SEIF(motion, sensor, run.initial_pose, max_active=6), run, steps=120)
 
 
@@ -150,8 +137,8 @@ def test_recovery_kernel_equals_reference(busy_seif):
 
 @pytest.mark.parametrize("max_active", [None, 2, 6])
 @pytest.mark.parametrize("mean_recovery", ["amortized", "exact"])
-def test_compiled_filter_equals_reference_filter(loop_run, max_active, mean_recovery):
-    motion, sensor, run = loop_run
+def test_compiled_filter_equals_reference_filter(ring_loop_run, max_active, mean_recovery):
+    motion, sensor, run = ring_loop_run
     options = dict(max_active=max_active, mean_recovery=mean_recovery)
     compiled = feed(SEIF(motion, sensor, run.initial_pose, **options), run, steps=150)
     reference = feed(SEIF(motion, sensor, run.initial_pose, implementation="reference", **options), run, steps=150)
@@ -178,8 +165,8 @@ def sparsify_full_matrix(omega, xi, mu, x, m0, m_minus):
 
 
 @pytest.mark.parametrize("implementation", ["compiled", "reference"])
-def test_one_sparsification_step(loop_run, implementation):
-    motion, sensor, run = loop_run
+def test_one_sparsification_step(ring_loop_run, implementation):
+    motion, sensor, run = ring_loop_run
     filt = feed(
         SEIF(motion, sensor, run.initial_pose, max_active=8, mean_recovery="exact", implementation=implementation),
         run,
@@ -216,8 +203,8 @@ def test_one_sparsification_step(loop_run, implementation):
 
 
 @pytest.mark.parametrize("max_active", [1, 3, 8])
-def test_active_bound_holds_after_every_update(loop_run, max_active):
-    motion, sensor, run = loop_run
+def test_active_bound_holds_after_every_update(ring_loop_run, max_active):
+    motion, sensor, run = ring_loop_run
     filt = SEIF(motion, sensor, run.initial_pose, max_active=max_active)
     exceeded = 0
     for t in range(run.steps):
@@ -240,8 +227,8 @@ def test_active_bound_holds_after_every_update(loop_run, max_active):
 # ---------------------------------------------------------------------------
 # mean recovery
 # ---------------------------------------------------------------------------
-def test_amortized_recovery_converges_to_exact_mean(loop_run):
-    motion, sensor, run = loop_run
+def test_amortized_recovery_converges_to_exact_mean(ring_loop_run):
+    motion, sensor, run = ring_loop_run
     filt = feed(SEIF(motion, sensor, run.initial_pose, max_active=4), run)
     exact = filt.exact_mean()
     errors = [np.abs(filt.mean - exact).max()]
@@ -255,8 +242,8 @@ def test_amortized_recovery_converges_to_exact_mean(loop_run):
     np.testing.assert_allclose(filt.exact_mean(), exact, rtol=1e-12, atol=1e-12)
 
 
-def test_exact_recovery_mean_solves_information_form(loop_run):
-    motion, sensor, run = loop_run
+def test_exact_recovery_mean_solves_information_form(ring_loop_run):
+    motion, sensor, run = ring_loop_run
     filt = feed(SEIF(motion, sensor, run.initial_pose, max_active=4, mean_recovery="exact"), run, steps=100)
     np.testing.assert_allclose(dense(filt) @ filt.mean, filt.information_vector, rtol=1e-9, atol=1e-9)
 
@@ -264,8 +251,8 @@ def test_exact_recovery_mean_solves_information_form(loop_run):
 # ---------------------------------------------------------------------------
 # constant time and linear memory (structural checks; timings are in benchmarks/)
 # ---------------------------------------------------------------------------
-def test_amortized_steps_never_touch_the_whole_map(loop_run, monkeypatch):
-    motion, sensor, run = loop_run
+def test_amortized_steps_never_touch_the_whole_map(ring_loop_run, monkeypatch):
+    motion, sensor, run = ring_loop_run
     filt = feed(SEIF(motion, sensor, run.initial_pose, max_active=6), run, steps=30)
 
     def forbidden(*args, **kwargs):

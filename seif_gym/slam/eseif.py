@@ -57,7 +57,6 @@ __all__ = [
     "RELOCALIZATION_RCOND",
     "marginalize_robot",
     "marginalize_robot_block",
-    "pose_information",
     "relocalization_pose_information",
     "select_relocalization_landmarks",
 ]
@@ -165,11 +164,11 @@ def relocalization_pose_information(mean, landmark_info, indices, noise_cov):
         det = a * d - b * c
         covariances[k, 0, 0], covariances[k, 1, 1] = d / det, a / det
         covariances[k, 0, 1] = covariances[k, 1, 0] = -0.5 * (b + c) / det
-    return pose_information(offsets, covariances, noise_cov)
+    return _pose_information(offsets, covariances, noise_cov)
 
 
 @njit(cache=True)
-def pose_information(offsets, covariances, noise_cov):
+def _pose_information(offsets, covariances, noise_cov):
     """``J_i = H_x^T (Q + H_m P_i H_m^T)^-1 H_x`` for landmarks at ``offsets`` (m, 2) from the robot.
 
     ``covariances`` (m, 2, 2) are the landmarks' ``P_i``; zero for a landmark
@@ -512,18 +511,17 @@ class ESEIF(SEIF):
         if len(self._active) + int(np.count_nonzero(~active)) <= self.max_active:
             return _ORDINARY, None
         store = self._store
-        # the pose information of each measurement, landmarks new to the map with P = 0
-        pose = store.mean[:3]
-        offsets = np.empty((len(ids), 2))
-        offsets[:, 0] = ranges * np.cos(pose[2] + bearings)
-        offsets[:, 1] = ranges * np.sin(pose[2] + bearings)
-        covariances = np.zeros((len(ids), 2, 2))
-        for k in np.flatnonzero(mapped):
-            i = indices[k]
-            offsets[k] = store.mean[3 + 2 * i : 5 + 2 * i] - pose[:2]
-            covariances[k] = np.linalg.inv(store.landmark_info[i])
-        information = pose_information(offsets, covariances, self._measurement_cov)
+        # the pose information of each measurement; a landmark new to the map sits where this
+        # measurement puts it, with P = 0
         candidates = np.flatnonzero(mapped)
+        information = np.empty((len(ids), 3, 3))
+        information[candidates] = relocalization_pose_information(
+            store.mean, store.landmark_info, indices[candidates], self._measurement_cov
+        )
+        new = np.flatnonzero(~mapped)
+        heading = store.mean[2] + bearings[new]
+        offsets = np.column_stack([ranges[new] * np.cos(heading), ranges[new] * np.sin(heading)])
+        information[new] = _pose_information(offsets, np.zeros((len(new), 2, 2)), self._measurement_cov)
         if len(candidates) >= 2:  # Walter et al.'s relocalization
             chosen = select_relocalization_landmarks(
                 information[candidates], self.relocalization_landmarks, RELOCALIZATION_RCOND

@@ -2,12 +2,13 @@
 
 Usage::
 
-    python -m agents.showcase [--episodes 100] [--seed 1000000] [--out showcase]
+    python -m agents.showcase [--episodes 100] [--seed 1000000] [--env SeifExplore-v1] [--out showcase]
 
 Runs :func:`agents.evaluate.evaluate_agents` for ``random``, ``frontier``,
 ``revisit``, ``info_gain`` and the shipped PPO policy
-(:data:`SHIPPED_POLICY`) on the same held-out seeds of the default
-``SeifExplore-v0`` (training never resets with these seeds), prints the
+(:data:`SHIPPED_POLICY`, trained on ``SeifExplore-v0``) on the same held-out
+seeds of ``--env`` (default the newest, ``SeifExplore-v1``; training never
+resets with these seeds), prints the
 table (means with 95% confidence intervals), writes ``results.csv``,
 ``summary.json``, ``summary.md`` and ``map_error.png`` to ``--out``, and
 records one episode of the shipped policy as ``episode.gif``.
@@ -26,16 +27,17 @@ from agents import BASELINES
 from agents.evaluate import SB3Agent, evaluate_agents, markdown_table, write_outputs
 
 SHIPPED_POLICY = Path(__file__).parent / "policies" / "ppo_seif_explore.zip"
-ENV_ID = "SeifExplore-v0"
+#: The env the main job evaluates on (the shipped policy was trained on ``SeifExplore-v0``).
+ENV_ID = "SeifExplore-v1"
 #: First held-out seed: far from the seeds training and its evaluation callback draw.
 HELD_OUT_SEED = 1_000_000
 
 
-def record_gif(policy_path: Path, path: Path, seed: int, every: int = 4, size: int = 400) -> Path:
-    """One episode of the policy at ``policy_path`` as an animated GIF (every ``every``-th frame)."""
+def record_gif(policy_path: Path, path: Path, seed: int, every: int = 4, size: int = 400, env_id: str = ENV_ID) -> Path:
+    """One episode of the policy at ``policy_path`` on ``env_id`` as an animated GIF (every ``every``-th frame)."""
     from PIL import Image
 
-    env = gym.make(ENV_ID, render_mode="rgb_array")
+    env = gym.make(env_id, render_mode="rgb_array")
     agent = SB3Agent(policy_path, env=env)
     observation, _ = env.reset(seed=seed)
     frames = [env.render()]
@@ -58,6 +60,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--episodes", type=int, default=100)
     parser.add_argument("--seed", type=int, default=HELD_OUT_SEED)
     parser.add_argument("--policy", default=str(SHIPPED_POLICY), help="SB3 .zip of the policy to show")
+    parser.add_argument("--env", default=ENV_ID, help="registered env id (default %(default)s)")
     parser.add_argument("--out", default="showcase")
     args = parser.parse_args(argv)
 
@@ -65,9 +68,9 @@ def main(argv: list[str] | None = None) -> None:
     out.mkdir(parents=True, exist_ok=True)
     specs = [*BASELINES, args.policy]
     started = time.perf_counter()
-    rows, summary = evaluate_agents(specs, episodes=args.episodes, seed=args.seed, env_id=ENV_ID, env_kwargs={})
+    rows, summary = evaluate_agents(specs, episodes=args.episodes, seed=args.seed, env_id=args.env, env_kwargs={})
     write_outputs(rows, summary, out)
-    print(f"{ENV_ID}, {args.episodes} episodes per agent on seeds {args.seed}..{args.seed + args.episodes - 1} "
+    print(f"{args.env}, {args.episodes} episodes per agent on seeds {args.seed}..{args.seed + args.episodes - 1} "
           f"({time.perf_counter() - started:.0f} s)\n")  # fmt: skip
     print(markdown_table(summary))
     labels = list(summary["agents"])
@@ -77,7 +80,7 @@ def main(argv: list[str] | None = None) -> None:
     verdict = "beats" if errors[policy_label] < errors[best_baseline] else "does not beat"
     print(f"\n{policy_label} ({errors[policy_label]:.3f} m) {verdict} the best baseline, "
           f"{best_baseline} ({errors[best_baseline]:.3f} m), on mean final map error.")  # fmt: skip
-    gif = record_gif(Path(args.policy), out / "episode.gif", seed=args.seed)
+    gif = record_gif(Path(args.policy), out / "episode.gif", seed=args.seed, env_id=args.env)
     print(f"\nwrote {', '.join(str(out / name) for name in ('results.csv', 'summary.json', 'map_error.png'))} and {gif}")
 
 

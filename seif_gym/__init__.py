@@ -1,37 +1,59 @@
 """seif_gym: a Gymnasium environment for learning active SLAM with a SEIF in the loop.
 
 Importing the package registers the environments, so both
-``gym.make("SeifExplore-v0")`` (after ``import seif_gym``) and
-``gym.make("seif_gym:SeifExplore-v0")`` work.
+``gym.make("SeifExplore-v1")`` (after ``import seif_gym``) and
+``gym.make("seif_gym:SeifExplore-v1")`` work.
 
 ========================== ================================================ ==================
 id                         what changes (kwargs of ``SeifExploreEnv``)        max_episode_steps
 ========================== ================================================ ==================
-``SeifExplore-v0``         defaults: 20 m arena, 30 uniform landmarks        400
-``SeifExploreLoop-v0``     ``layout="loop"``, 40 landmarks on a ring: the    400
+``SeifExplore-v1``         defaults: 20 m arena, 30 uniform landmarks        400
+``SeifExploreLoop-v1``     ``layout="loop"``, 40 landmarks on a ring: the    400
                            map only stays accurate if the loop is closed
-``SeifExploreClustered-v0`` ``layout="clustered"``: empty space between       400
+``SeifExploreClustered-v1`` ``layout="clustered"``: empty space between       400
                            clusters of landmarks
-``SeifExploreLarge-v0``    40 m arena, 120 landmarks                         1000
+``SeifExploreLarge-v1``    40 m arena, 120 landmarks                         1000
 ========================== ================================================ ==================
+
+Versions
+--------
+* ``-v1`` (seif_gym 0.2): the filter's mean recovery is the wavefront
+  recovery (``mean_recovery="wavefront"``, the SEIF's and ESEIF's default),
+  which keeps up with loop closures (``benchmarks/fidelity.py``).
+* ``-v0`` (seif_gym 0.1): Thrun's round-robin amortized recovery
+  (``mean_recovery="amortized"``), kept so that results measured on it
+  (the shipped policies, the robustness findings) can be reproduced bit for bit.
 """
 
 from gymnasium.envs.registration import register, registry
 
-__version__ = "0.1.0"
+__version__ = "0.2.0"
 
 ENTRY_POINT = "seif_gym.envs.explore:SeifExploreEnv"
 
-#: id -> (kwargs, max_episode_steps) of every registered variant.
+#: name -> (kwargs, max_episode_steps) of every layout variant, whatever the version.
+_LAYOUTS: dict[str, tuple[dict, int]] = {
+    "SeifExplore": ({}, 400),
+    "SeifExploreLoop": ({"layout": "loop", "num_landmarks": 40}, 400),
+    "SeifExploreClustered": ({"layout": "clustered"}, 400),
+    "SeifExploreLarge": ({"arena_size": 40.0, "num_landmarks": 120}, 1000),
+}
+
+#: What each version pins beyond the layout (kwargs of ``SeifExploreEnv``).
+VERSIONS: dict[int, dict] = {0: {"mean_recovery": "amortized"}, 1: {"mean_recovery": "wavefront"}}
+
+#: The newest version, what ``SeifExploreEnv()`` builds with its defaults.
+LATEST_VERSION = max(VERSIONS)
+
+#: id -> (kwargs, max_episode_steps) of every registered variant, every version.
 VARIANTS: dict[str, tuple[dict, int]] = {
-    "SeifExplore-v0": ({}, 400),
-    "SeifExploreLoop-v0": ({"layout": "loop", "num_landmarks": 40}, 400),
-    "SeifExploreClustered-v0": ({"layout": "clustered"}, 400),
-    "SeifExploreLarge-v0": ({"arena_size": 40.0, "num_landmarks": 120}, 1000),
+    f"{name}-v{version}": ({**kwargs, **pinned}, steps)
+    for version, pinned in VERSIONS.items()
+    for name, (kwargs, steps) in _LAYOUTS.items()
 }
 
 for _env_id, (_kwargs, _steps) in VARIANTS.items():
     if _env_id not in registry:
         register(id=_env_id, entry_point=ENTRY_POINT, kwargs=_kwargs, max_episode_steps=_steps)
 
-__all__ = ["VARIANTS", "ENTRY_POINT", "__version__"]
+__all__ = ["VARIANTS", "VERSIONS", "LATEST_VERSION", "ENTRY_POINT", "__version__"]

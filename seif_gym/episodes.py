@@ -508,12 +508,24 @@ def _map_error(filt, landmarks: FloatArray, d_cap) -> float:
     return float(_env_map_error(estimates, landmarks, ids, d_cap))
 
 
+#: The env's filter options an episode's config holds, and what an episode recorded before the option existed ran.
+_ENV_FILTER_OPTIONS: dict[str, Any] = {"max_active": None, "mean_recovery": "amortized"}
+
+
 def _default_options(factory, config: Mapping[str, Any], options: dict[str, Any]) -> dict[str, Any]:
-    """Add the env's filter options (``max_active``) where the filter takes them and the caller gave none."""
+    """Add the env's filter options (``max_active``, ``mean_recovery``) where the filter takes them and the caller gave none.
+
+    An episode recorded by seif_gym 0.1 has no ``mean_recovery`` in its
+    config: it ran Thrun's round-robin recovery, which is what it replays with.
+    """
     accepted = getattr(factory, "OPTIONS", None) if isinstance(factory, type) and issubclass(factory, SlamFilter) else None
-    if accepted is not None and "max_active" in accepted and "max_active" not in options and "max_active" in config:
-        return {**options, "max_active": config["max_active"]}
-    return options
+    if accepted is None:
+        return options
+    added = dict(options)
+    for name, recorded_before in _ENV_FILTER_OPTIONS.items():
+        if name in accepted and name not in options and (name in config or recorded_before is not None):
+            added[name] = config.get(name, recorded_before)
+    return added
 
 
 def replay(
@@ -549,8 +561,8 @@ def replay(
         (``t = 0`` after the first one, ``t = T`` after the last step), e.g.
         to read covariances.
     **options
-        Filter options. If the filter takes ``max_active`` (the SEIF) and
-        none is given, the episode's ``config["max_active"]`` is used, as the
+        Filter options. If the filter takes ``max_active`` and ``mean_recovery``
+        (the SEIF, the ESEIF) and none is given, the episode's config's are used, as the
         env does.
 
     Returns

@@ -31,7 +31,7 @@ from seif_gym import ENTRY_POINT, VARIANTS  # noqa: E402
 from seif_gym.envs.explore import Measurements  # noqa: E402
 from seif_gym.observation import BeliefEncoder  # noqa: E402
 
-ENV_ID = "SeifExplore-v0"
+ENV_ID = "SeifExplore-v1"
 OBS_KEYS = ("pose", "landmarks", "landmarks_mask", "belief_map")
 #: dtype of each observation entry: 1-D float32 vectors and a uint8 image (what SB3 expects).
 OBS_DTYPES = {"pose": np.float32, "landmarks": np.float32, "landmarks_mask": np.float32, "belief_map": np.uint8}

@@ -16,7 +16,7 @@ from numba import njit
 from numpy.typing import NDArray
 
 from seif_gym.observation import BeliefEncoder, ObservationConfig
-from seif_gym.slam import FILTERS, RangeBearingSensor, SlamFilter, VelocityMotionModel, make_filter
+from seif_gym.slam import FILTERS, SEIF, RangeBearingSensor, SlamFilter, VelocityMotionModel, make_filter
 from seif_gym.slam.association import AssociationAudit, Associator
 from seif_gym.slam.models import wrap_angle
 from seif_gym.world import LAYOUTS, World, WorldConfig, make_landmarks
@@ -85,10 +85,13 @@ class FilterConfig:
     filter: str = "seif"
     max_active: int | None = 8
     data_association: str = "known"
+    mean_recovery: str = "wavefront"
 
     def __post_init__(self) -> None:
         if self.filter not in FILTERS:
             raise ValueError(f"filter must be one of {tuple(FILTERS)}, got {self.filter!r}")
+        if self.mean_recovery not in SEIF.MEAN_RECOVERIES:
+            raise ValueError(f"mean_recovery must be one of {SEIF.MEAN_RECOVERIES}, got {self.mean_recovery!r}")
         if self.data_association not in ("known", "ml"):
             raise ValueError(f"data_association must be 'known' or 'ml', got {self.data_association!r}")
 
@@ -288,6 +291,7 @@ class SeifExploreEnv(gym.Env):
     | `max_speed`, `max_turn_rate` | 1.0, 1.0 | action scaling, m/s and rad/s |
     | `filter` | `"seif"` | any of `seif_gym.slam.FILTERS` |
     | `max_active` | 8 | SEIF's active-landmark bound `k` (ignored by the exact filters) |
+    | `mean_recovery` | `"wavefront"` | SEIF/ESEIF mean recovery: `"wavefront"` (`-v1`), Thrun's round-robin `"amortized"` (`-v0`), or `"exact"` (a sparse solve every step) |
     | `data_association` | `"known"` | `"known"`: the filter gets the true landmark ids; `"ml"`: maximum-likelihood association (`seif_gym.slam.Associator`: χ² gate, new-landmark threshold, mutual exclusion; SEIF covariances from the Markov blanket), so that agents and filters face association errors |
     | `reward` | `"map_error"` | or `"information_gain"` |
     | `d_cap` | 2.0 | cap of a landmark's error in `E_t`, metres |
@@ -318,6 +322,7 @@ class SeifExploreEnv(gym.Env):
         filter: str = "seif",
         max_active: int | None = 8,
         data_association: str = "known",
+        mean_recovery: str = "wavefront",
         reward: str = "map_error",
         d_cap: float = 2.0,
         wall_penalty: float = 0.005,
@@ -335,7 +340,9 @@ class SeifExploreEnv(gym.Env):
         self.world_config = WorldConfig(arena_size=arena_size, layout=layout, num_landmarks=num_landmarks)
         self.robot_config = RobotConfig(dt=dt, max_speed=max_speed, max_turn_rate=max_turn_rate, motion_noise=tuple(motion_noise))
         self.sensor_config = SensorConfig(sensor_range=sensor_range, fov=fov, sigma_range=sigma_range, sigma_bearing=sigma_bearing)
-        self.filter_config = FilterConfig(filter=filter, max_active=max_active, data_association=data_association)
+        self.filter_config = FilterConfig(
+            filter=filter, max_active=max_active, data_association=data_association, mean_recovery=mean_recovery
+        )
         self.reward_config = RewardConfig(reward=reward, d_cap=d_cap, wall_penalty=wall_penalty, divergence_threshold=divergence_threshold)
         self.observation_config = ObservationConfig(
             nearest_landmarks=nearest_landmarks,
@@ -365,7 +372,10 @@ class SeifExploreEnv(gym.Env):
 
     # -- configuration ---------------------------------------------------------
     def _filter_options(self) -> dict[str, Any]:
-        return {"max_active": self.filter_config.max_active} if self.filter_config.filter in ("seif", "eseif") else {}
+        config = self.filter_config
+        if config.filter not in ("seif", "eseif"):
+            return {}
+        return {"max_active": config.max_active, "mean_recovery": config.mean_recovery}
 
     @property
     def config(self) -> dict[str, Any]:

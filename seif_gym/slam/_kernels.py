@@ -472,3 +472,247 @@ def blanket_joint_covariance(robot_info, robot_links, landmark_info, neighbour_i
         for c in range(rows.shape[0]):
             w[a, c] *= inv
     return w.T @ w
+
+
+
+# ---------------------------------------------------------------------------
+# Wavefront mean recovery (the fast twin of seif.recover_mean_wavefront)
+# ---------------------------------------------------------------------------
+#: Kinds of entries in the wavefront's undo log.
+UNDO_MEAN, UNDO_POP, UNDO_PUSH = 0, 1, 2
+
+
+@njit(cache=True)
+def _relax_landmark(robot_links, landmark_info, neighbour_index, neighbour_info, neighbour_count,
+                    information_vector, mean, i, relaxation):  # fmt: skip
+    """One over-relaxed block Gauss-Seidel step on landmark ``i``; returns the squared move of its mean."""
+    o = 3 + 2 * i
+    r0 = information_vector[o]
+    r1 = information_vector[o + 1]
+    for b in range(3):
+        r0 -= robot_links[i, b, 0] * mean[b]
+        r1 -= robot_links[i, b, 1] * mean[b]
+    for slot in range(neighbour_count[i]):
+        oj = 3 + 2 * neighbour_index[i, slot]
+        r0 -= neighbour_info[i, slot, 0, 0] * mean[oj] + neighbour_info[i, slot, 0, 1] * mean[oj + 1]
+        r1 -= neighbour_info[i, slot, 1, 0] * mean[oj] + neighbour_info[i, slot, 1, 1] * mean[oj + 1]
+    new0, new1 = _solve_2x2(landmark_info[i], r0, r1)
+    d0 = relaxation * (new0 - mean[o])
+    d1 = relaxation * (new1 - mean[o + 1])
+    mean[o] += d0
+    mean[o + 1] += d1
+    return d0 * d0 + d1 * d1
+
+
+@njit(cache=True)
+def relax_robot(robot_info, robot_links, information_vector, mean, active):
+    """``mu_x = Omega_xx^-1 (xi_x - sum_active Omega_xi mu_i)`` (a Gauss-Seidel step on the robot)."""
+    rhs = np.empty(3)
+    for a in range(3):
+        rhs[a] = information_vector[a]
+    for k in range(active.shape[0]):
+        i = active[k]
+        o = 3 + 2 * i
+        for a in range(3):
+            rhs[a] -= robot_links[i, a, 0] * mean[o] + robot_links[i, a, 1] * mean[o + 1]
+    pose = np.linalg.solve(robot_info, rhs)
+    for a in range(3):
+        mean[a] = pose[a]
+
+
+@njit(cache=True)
+def _log(undo_kind, undo_index, undo_value, undo_count, kind, index, v0, v1):
+    n = undo_count[0]
+    undo_kind[n] = kind
+    undo_index[n] = index
+    undo_value[n, 0] = v0
+    undo_value[n, 1] = v1
+    undo_count[0] = n + 1
+
+
+@njit(cache=True)
+def _relax_logged(robot_links, landmark_info, neighbour_index, neighbour_info, neighbour_count, information_vector,
+                  mean, i, relaxation, tol2, queue, queued, queue_state, undo_kind, undo_index, undo_value,
+                  undo_count):  # fmt: skip
+    o = 3 + 2 * i
+    _log(undo_kind, undo_index, undo_value, undo_count, UNDO_MEAN, i, mean[o], mean[o + 1])
+    moved = _relax_landmark(robot_links, landmark_info, neighbour_index, neighbour_info, neighbour_count,
+                            information_vector, mean, i, relaxation)  # fmt: skip
+    if moved > tol2:
+        capacity = queue.shape[0]
+        for slot in range(neighbour_count[i]):
+            j = neighbour_index[i, slot]
+            if not queued[j] and queue_state[1] < capacity:
+                queue[(queue_state[0] + queue_state[1]) % capacity] = j
+                queue_state[1] += 1
+                queued[j] = True
+                _log(undo_kind, undo_index, undo_value, undo_count, UNDO_PUSH, j, 0.0, 0.0)
+
+
+@njit(cache=True)
+def relax_robot_block(robot_info, robot_links, landmark_info, neighbour_index, neighbour_info, neighbour_count,
+                      information_vector, mean, block_position, active):  # fmt: skip
+    """Solve for the robot and ``active`` jointly, the rest of the map held at its mean.
+
+    ``Omega_BB mu_B = xi_B - Omega_B,rest mu_rest`` over the block ``B`` of
+    the robot and its active landmarks (a block Gauss-Seidel step with one
+    big block). Returns the new block mean (robot first); writes nothing.
+    """
+    omega, xi, _ = gather(robot_info, robot_links, landmark_info, neighbour_index, neighbour_info,
+                          neighbour_count, information_vector, mean, block_position, active)  # fmt: skip
+    for p in range(active.shape[0]):
+        block_position[active[p]] = p
+    for p in range(active.shape[0]):
+        i = active[p]
+        o = 3 + 2 * p
+        for slot in range(neighbour_count[i]):
+            j = neighbour_index[i, slot]
+            if block_position[j] < 0:
+                oj = 3 + 2 * j
+                for a in range(2):
+                    xi[o + a] -= neighbour_info[i, slot, a, 0] * mean[oj] + neighbour_info[i, slot, a, 1] * mean[oj + 1]
+    for p in range(active.shape[0]):
+        block_position[active[p]] = -1
+    return np.linalg.solve(omega, xi)
+
+
+@njit(cache=True)
+def recover_mean_wavefront(robot_info, robot_links, landmark_info, neighbour_index, neighbour_info, neighbour_count,
+                           information_vector, mean, block_position, active, seeds, queue, queued, queue_state,
+                           budget, relaxation, tolerance, undo_kind, undo_index, undo_value, undo_count):  # fmt: skip
+    """Fast :func:`seif_gym.slam.seif.recover_mean_wavefront`, with an undo log.
+
+    Every change of a landmark mean, every pop and every push is appended to
+    the undo log (``undo_count[0]`` entries) before it is made, so that
+    :func:`undo_wavefront` can revert a call, also one that failed midway
+    (the robot's mean is the caller's to save).
+    """
+    tol2 = tolerance * tolerance
+    capacity = queue.shape[0]
+    for k in range(seeds.shape[0]):
+        _relax_logged(robot_links, landmark_info, neighbour_index, neighbour_info, neighbour_count,
+                      information_vector, mean, seeds[k], 1.0, tol2, queue, queued, queue_state,
+                      undo_kind, undo_index, undo_value, undo_count)  # fmt: skip
+    solution = relax_robot_block(robot_info, robot_links, landmark_info, neighbour_index, neighbour_info,
+                                 neighbour_count, information_vector, mean, block_position, active)  # fmt: skip
+    for a in range(3):
+        mean[a] = solution[a]
+    for p in range(active.shape[0]):
+        i = active[p]
+        o = 3 + 2 * i
+        _log(undo_kind, undo_index, undo_value, undo_count, UNDO_MEAN, i, mean[o], mean[o + 1])
+        d0 = solution[3 + 2 * p] - mean[o]
+        d1 = solution[4 + 2 * p] - mean[o + 1]
+        mean[o] += d0
+        mean[o + 1] += d1
+        if d0 * d0 + d1 * d1 > tol2:
+            for slot in range(neighbour_count[i]):
+                j = neighbour_index[i, slot]
+                if not queued[j] and queue_state[1] < capacity:
+                    queue[(queue_state[0] + queue_state[1]) % capacity] = j
+                    queue_state[1] += 1
+                    queued[j] = True
+                    _log(undo_kind, undo_index, undo_value, undo_count, UNDO_PUSH, j, 0.0, 0.0)
+    for _ in range(budget):
+        if queue_state[1] == 0:
+            break
+        i = queue[queue_state[0]]
+        _log(undo_kind, undo_index, undo_value, undo_count, UNDO_POP, i, 0.0, 0.0)
+        queue[queue_state[0]] = -1
+        queue_state[0] = (queue_state[0] + 1) % capacity
+        queue_state[1] -= 1
+        queued[i] = False
+        _relax_logged(robot_links, landmark_info, neighbour_index, neighbour_info, neighbour_count,
+                      information_vector, mean, i, relaxation, tol2, queue, queued, queue_state,
+                      undo_kind, undo_index, undo_value, undo_count)  # fmt: skip
+    relax_robot(robot_info, robot_links, information_vector, mean, active)
+
+
+@njit(cache=True)
+def undo_wavefront(mean, queue, queued, queue_state, undo_kind, undo_index, undo_value, count):
+    """Revert the first ``count`` logged changes of :func:`recover_mean_wavefront`, newest first."""
+    capacity = queue.shape[0]
+    for n in range(count - 1, -1, -1):
+        i = undo_index[n]
+        kind = undo_kind[n]
+        if kind == UNDO_MEAN:
+            mean[3 + 2 * i] = undo_value[n, 0]
+            mean[4 + 2 * i] = undo_value[n, 1]
+        elif kind == UNDO_PUSH:
+            queue_state[1] -= 1
+            queue[(queue_state[0] + queue_state[1]) % capacity] = -1
+            queued[i] = False
+        else:
+            queue_state[0] = (queue_state[0] - 1) % capacity
+            queue[queue_state[0]] = i
+            queue_state[1] += 1
+            queued[i] = True
+
+
+# ---------------------------------------------------------------------------
+# Journal of a filter step (seif.UpdateJournal): save and restore landmark rows
+# ---------------------------------------------------------------------------
+@njit(cache=True)
+def save_rows(rows, robot_links, landmark_info, neighbour_index, neighbour_info, neighbour_count,
+              information_vector, mean, is_active, last_observed):  # fmt: skip
+    """Copies of every per-landmark value of ``rows`` (those within the arrays' capacity)."""
+    capacity = landmark_info.shape[0]
+    count = 0
+    for i in rows:
+        if i < capacity:
+            count += 1
+    kept = np.empty(count, dtype=np.int64)
+    count = 0
+    for i in rows:
+        if i < capacity:
+            kept[count] = i
+            count += 1
+    width = 0  # neighbour slots beyond a landmark's count are -1 and 0: save the used ones only
+    for p in range(count):
+        width = max(width, neighbour_count[kept[p]])
+    links = np.empty((count, 3, 2))
+    info = np.empty((count, 2, 2))
+    index = np.empty((count, width), dtype=np.int64)
+    neighbours = np.empty((count, width, 2, 2))
+    counts = np.empty(count, dtype=np.int64)
+    values = np.empty((count, 4))
+    flags = np.empty(count, dtype=np.bool_)
+    observed = np.empty(count, dtype=np.int64)
+    for p in range(count):
+        i = kept[p]
+        links[p] = robot_links[i]
+        info[p] = landmark_info[i]
+        index[p] = neighbour_index[i, :width]
+        neighbours[p] = neighbour_info[i, :width]
+        counts[p] = neighbour_count[i]
+        values[p, 0] = information_vector[3 + 2 * i]
+        values[p, 1] = information_vector[4 + 2 * i]
+        values[p, 2] = mean[3 + 2 * i]
+        values[p, 3] = mean[4 + 2 * i]
+        flags[p] = is_active[i]
+        observed[p] = last_observed[i]
+    return kept, links, info, index, neighbours, counts, values, flags, observed
+
+
+@njit(cache=True)
+def restore_rows(saved_rows, links, info, index, neighbours, counts, values, flags, observed,
+                 robot_links, landmark_info, neighbour_index, neighbour_info, neighbour_count,
+                 information_vector, mean, is_active, last_observed):  # fmt: skip
+    """Write the copies of :func:`save_rows` back (into the arrays they were saved from)."""
+    width = index.shape[1]
+    for p in range(saved_rows.shape[0]):
+        i = saved_rows[p]
+        robot_links[i] = links[p]
+        landmark_info[i] = info[p]
+        for slot in range(width, neighbour_count[i]):  # slots a failed step appended
+            neighbour_index[i, slot] = -1
+            neighbour_info[i, slot] = 0.0
+        neighbour_index[i, :width] = index[p]
+        neighbour_info[i, :width] = neighbours[p]
+        neighbour_count[i] = counts[p]
+        information_vector[3 + 2 * i] = values[p, 0]
+        information_vector[4 + 2 * i] = values[p, 1]
+        mean[3 + 2 * i] = values[p, 2]
+        mean[4 + 2 * i] = values[p, 3]
+        is_active[i] = flags[p]
+        last_observed[i] = observed[p]

@@ -104,7 +104,7 @@ class SlamFilter(ABC):
         self._measurement_cov: FloatArray = np.array(noise, dtype=np.float64)
         self._measurement_info: FloatArray = np.linalg.inv(self._measurement_cov)
         self._id_to_index: dict[int, int] = {}
-        self._ids: NDArray[np.int64] = np.empty(16, dtype=np.int64)
+        self._ids: NDArray[np.int64] = np.zeros(16, dtype=np.int64)
         self.options: dict[str, Any] = {**self.OPTIONS, **options}
         self._check_options(self.options)
         self._initialize(pose, np.array(cov, dtype=np.float64))
@@ -171,12 +171,16 @@ class SlamFilter(ABC):
                 n += 1
             indices[k] = index
         new_ids = ids[is_new]
+        # a failed update must leave the id table bit-identical too (also its spare capacity)
+        saved_ids = (self._ids, self._ids[n - len(new_ids) : n].copy())
         if len(new_ids):
             self._append_ids(new_ids)
         try:
             self._update(ranges, bearings, indices, is_new)
         except BaseException:
             self._remove_last_ids(len(new_ids))
+            self._ids = saved_ids[0]
+            self._ids[n - len(new_ids) : n] = saved_ids[1]
             raise
 
     @staticmethod
@@ -197,7 +201,7 @@ class SlamFilter(ABC):
     def _append_ids(self, new_ids: NDArray[np.int64]) -> None:
         n = len(self._id_to_index)
         if n + len(new_ids) > len(self._ids):
-            grown = np.empty(max(2 * len(self._ids), n + len(new_ids)), dtype=np.int64)
+            grown = np.zeros(max(2 * len(self._ids), n + len(new_ids)), dtype=np.int64)
             grown[:n] = self._ids[:n]
             self._ids = grown
         self._ids[n : n + len(new_ids)] = new_ids

@@ -310,8 +310,8 @@ class ESEIF(SEIF):
         ``w`` in ``(0, 1)``: the share of a ``z_beta`` measurement's
         information that goes to the map in a *split* relocalization (see
         Notes), the rest going to the new pose.
-    mean_recovery : {"amortized", "exact"}, default "amortized"
-    recovery_landmarks : int, default 8
+    mean_recovery : {"wavefront", "amortized", "exact"}, default "wavefront"
+    recovery_landmarks, recovery_budget, recovery_relaxation, recovery_tolerance
     implementation : {"compiled", "reference"}, default "compiled"
         As for the SEIF.
 
@@ -422,6 +422,7 @@ class ESEIF(SEIF):
     """
 
     OPTIONS: ClassVar[dict[str, Any]] = {**SEIF.OPTIONS, "relocalization_landmarks": 2, "split_weight": 0.5}
+    _COUNTERS: ClassVar[tuple[str, ...]] = ("relocalizations", "split_relocalizations", "discarded_measurements")
 
     def _check_options(self, options: dict[str, Any]) -> None:
         super()._check_options(options)
@@ -466,7 +467,10 @@ class ESEIF(SEIF):
         if kept is not None:
             self.discarded_measurements += len(kept) - int(np.count_nonzero(kept))
 
-    def _update(self, ranges: FloatArray, bearings: FloatArray, indices: IndexArray, is_new: NDArray[np.bool_]) -> None:
+    def _measurement_step(
+        self, ranges: FloatArray, bearings: FloatArray, indices: IndexArray, is_new: NDArray[np.bool_]
+    ) -> None:
+        """One update (inside the SEIF's transaction): ordinary, or a sparsification by relocalization."""
         if np.any(is_new):
             self._add_landmarks(ranges[is_new], bearings[is_new])
         self._update_count += 1
@@ -487,16 +491,6 @@ class ESEIF(SEIF):
         self._recover_mean()
         self.relocalizations += 1
         self.split_relocalizations += int(split)
-
-    def _add_landmarks(self, ranges: FloatArray, bearings: FloatArray) -> None:
-        """Append new landmarks with zero information at the inverse sensor model's positions."""
-        store = self._store
-        inverse = getattr(self.sensor, "inverse_trusted", self.sensor.inverse)
-        store.add_landmarks(inverse(store.mean[:3], ranges, bearings))
-        if store.capacity > len(self._last_observed):
-            grow = store.capacity - len(self._last_observed)
-            self._last_observed = np.concatenate([self._last_observed, np.zeros(grow, dtype=np.int64)])
-            self._is_active = np.concatenate([self._is_active, np.zeros(grow, dtype=bool)])
 
     def _plan_update(
         self, ranges: FloatArray, bearings: FloatArray, ids: NDArray[np.int64]

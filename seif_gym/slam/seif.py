@@ -10,7 +10,13 @@ in the size of the active set, never in the size of the map:
 1. :func:`motion_update`        ``SEIF.md`` section 1
 2. :func:`measurement_update`   ``SEIF.md`` section 2
 3. :func:`sparsify`             ``SEIF.md`` section 3
-4. :func:`recover_mean_amortized` ``SEIF.md`` section 4 (and :func:`recover_mean_exact`)
+4. :func:`recover_mean_wavefront` ``SEIF.md`` section 4, the default amortized
+   recovery (and Thrun's round robin :func:`recover_mean_amortized`, and
+   :func:`recover_mean_exact`)
+
+An update either completes or leaves the filter bit-identical: each stage
+saves what it is about to change in a :class:`UpdateJournal` first, and a
+failure anywhere (a block that is not positive definite, say) restores it.
 
 These functions are the *reference path*. :class:`SEIF` runs, by default,
 compiled versions of the same steps from :mod:`seif_gym.slam._kernels`, which
@@ -38,7 +44,10 @@ __all__ = [
     "measurement_update",
     "sparsify",
     "recover_mean_amortized",
+    "recover_mean_wavefront",
     "recover_mean_exact",
+    "RecoveryQueue",
+    "UpdateJournal",
     "blanket_covariances",
 ]
 
@@ -212,6 +221,231 @@ def recover_mean_amortized(store: InformationStore, landmarks: IndexArray, activ
     mean[:3] = np.linalg.solve(store.robot_info, rhs)
 
 
+class RecoveryQueue:
+    """The FIFO of landmarks waiting for relaxation in :func:`recover_mean_wavefront`.
+
+    A ring buffer (``items``, free slots hold -1), a flag per landmark
+    (``queued``) and ``state = [head, size]``; arrays so that the compiled
+    kernel can work on them in place. Memory linear in the map.
+    """
+
+    def __init__(self, capacity: int = 64) -> None:
+        self.items: IndexArray = np.full(capacity, -1, dtype=np.int64)
+        self.queued: NDArray[np.bool_] = np.zeros(capacity, dtype=bool)
+        self.state: IndexArray = np.zeros(2, dtype=np.int64)
+
+    def __len__(self) -> int:
+        return int(self.state[1])
+
+    def ordered(self) -> IndexArray:
+        """The queued landmarks, first to be relaxed first."""
+        head, size = int(self.state[0]), int(self.state[1])
+        return self.items[(head + np.arange(size)) % len(self.items)]
+
+    def grow(self, capacity: int) -> None:
+        """Make room for ``capacity`` landmarks (new arrays; the queue's order is kept)."""
+        if capacity <= len(self.items):
+            return
+        ordered = self.ordered()
+        items = np.full(capacity, -1, dtype=np.int64)
+        items[: len(ordered)] = ordered
+        queued = np.zeros(capacity, dtype=bool)
+        queued[: len(self.queued)] = self.queued
+        self.items, self.queued = items, queued
+        self.state = np.array([0, len(ordered)], dtype=np.int64)
+
+    def push(self, landmark: int) -> None:
+        if not self.queued[landmark]:
+            self.items[(self.state[0] + self.state[1]) % len(self.items)] = landmark
+            self.state[1] += 1
+            self.queued[landmark] = True
+
+    def pop(self) -> int:
+        head = int(self.state[0])
+        landmark = int(self.items[head])
+        self.items[head] = -1
+        self.state[0] = (head + 1) % len(self.items)
+        self.state[1] -= 1
+        self.queued[landmark] = False
+        return landmark
+
+
+def recover_mean_wavefront(
+    store: InformationStore,
+    queue: RecoveryQueue,
+    active: IndexArray,
+    seeds: IndexArray,
+    budget: int,
+    relaxation: float,
+    tolerance: float,
+) -> None:
+    """Block coordinate descent that follows the correction outwards from the robot.
+
+    Relax each landmark of ``seeds`` (passive ones in round robin); solve for
+    the robot and its ``active`` landmarks jointly, the rest of the map held
+    at its mean; then pop up to ``budget`` landmarks from ``queue`` and relax
+    each with over-relaxation ``relaxation``. A landmark whose mean moves by
+    more than ``tolerance`` puts its neighbours in ``Omega`` on the queue.
+    Finally relax the robot again. Updates ``store.mean`` and ``queue`` in place.
+
+    Notes
+    -----
+    ``SEIF.md`` section 4: the same block step as Thrun's amortized recovery,
+    over-relaxed (block SOR, ``0 < relaxation < 2``)::
+
+        mu_i <- mu_i + w [ Omega_ii^-1 (xi_i - sum_{j != i} Omega_ij mu_j) - mu_i ]
+
+    Every block step lowers ``1/2 mu^T Omega mu - xi^T mu`` for ``0 < w < 2``
+    (``Omega`` is positive definite), so with the round robin of passive
+    landmarks among the seeds the mean converges to ``Omega^-1 xi`` whatever
+    the order. The order is what matters for speed: a loop closure moves the
+    robot and the landmarks it sees, and the correction must travel along the
+    chain of links back through the map; the FIFO relaxes the landmarks in the
+    order the wave reaches them, a bounded number per update, and carries the
+    rest over to the next update. The robot and its active landmarks are
+    coupled by the strongest links of ``Omega``; one joint solve of their
+    ``(3 + 2k)`` block (the block step of a bigger block) moves them together,
+    where single-block steps would creep. The cost per update is
+    ``O(k^3 + (|seeds| + budget) * degree)``, whatever the size of the map.
+    """
+    mean, xi = store.mean, store.information_vector
+
+    def relax(i: int, weight: float) -> None:
+        rows = slice(3 + 2 * i, 5 + 2 * i)
+        rhs = xi[rows] - store.robot_links[i].T @ mean[:3]
+        for slot in range(store.neighbour_count[i]):
+            j = store.neighbour_index[i, slot]
+            rhs = rhs - store.neighbour_info[i, slot] @ mean[3 + 2 * j : 5 + 2 * j]
+        move = weight * (np.linalg.solve(store.landmark_info[i], rhs) - mean[rows])
+        mean[rows] += move
+        if float(move @ move) > tolerance * tolerance:
+            for j in store.neighbour_index[i, : store.neighbour_count[i]]:
+                queue.push(int(j))
+
+    def relax_robot() -> None:
+        rhs = xi[:3].copy()
+        for i in active:
+            rhs -= store.robot_links[i] @ mean[3 + 2 * i : 5 + 2 * i]
+        mean[:3] = np.linalg.solve(store.robot_info, rhs)
+
+    for i in seeds:
+        relax(int(i), 1.0)
+    # the robot and its active landmarks in one block, the rest of the map held at its mean
+    omega, rhs, _ = store.gather(active)
+    inside = set(active.tolist())
+    for p, i in enumerate(active.tolist()):
+        for slot in range(store.neighbour_count[i]):
+            j = int(store.neighbour_index[i, slot])
+            if j not in inside:
+                rhs[3 + 2 * p : 5 + 2 * p] -= store.neighbour_info[i, slot] @ mean[3 + 2 * j : 5 + 2 * j]
+    solution = np.linalg.solve(omega, rhs)
+    mean[:3] = solution[:3]
+    for p, i in enumerate(active.tolist()):
+        move = solution[3 + 2 * p : 5 + 2 * p] - mean[3 + 2 * i : 5 + 2 * i]
+        mean[3 + 2 * i : 5 + 2 * i] += move
+        if float(move @ move) > tolerance * tolerance:
+            for j in store.neighbour_index[i, : store.neighbour_count[i]]:
+                queue.push(int(j))
+    for _ in range(budget):
+        if len(queue) == 0:
+            break
+        relax(queue.pop(), relaxation)
+    relax_robot()
+
+
+class UpdateJournal:
+    """What a filter step is about to change, saved so that a failed step can be undone.
+
+    Opened with the landmarks whose rows the step may change (information
+    rows, links, ``xi``, ``mu``, flags): they are saved at once, with the
+    robot's block and references to every array (a stage that grows the
+    store replaces them). Recovery adds what it touches beyond them: the
+    wavefront's undo log, or copies for the exact and the plain paths.
+    :meth:`restore` puts it all back, newest first, so that the filter is
+    bit-identical to before the step. It costs time in the number of landmarks
+    the step touches, never in the size of the map.
+    """
+
+    _STORE_ARRAYS = (
+        "robot_links", "landmark_info", "neighbour_index", "neighbour_info",
+        "neighbour_count", "information_vector", "mean", "block_position",
+    )  # fmt: skip
+    _FILTER_ARRAYS = ("_active", "_is_active", "_last_observed")
+
+    def __init__(self, filt: SEIF, landmarks: IndexArray | None = None) -> None:
+        store, queue = filt._store, filt._queue
+        self._filter = filt
+        self._store_arrays = tuple(getattr(store, name) for name in self._STORE_ARRAYS)
+        self._filter_arrays = tuple(getattr(filt, name) for name in self._FILTER_ARRAYS)
+        self._scalars = (store.num_landmarks, filt._update_count, filt._round_robin,
+                         tuple(getattr(filt, name) for name in filt._COUNTERS))  # fmt: skip
+        self._robot = (store.robot_info.copy(), store.information_vector[:3].copy(), store.mean[:3].copy())
+        self._queue = (queue.items, queue.queued, queue.state, queue.state.copy())
+        self._saved: list[tuple] = []
+        self._saved_rows: set[int] = set()
+        self._full_mean: FloatArray | None = None
+        self._queue_copy: tuple[IndexArray, NDArray[np.bool_]] | None = None
+        self._wavefront_logs: list[tuple] = []
+        if landmarks is not None:
+            self.save_landmarks(landmarks)
+
+    def save_landmarks(self, landmarks: IndexArray) -> None:
+        """Save the rows of ``landmarks`` (state orders) that are not saved yet.
+
+        Call it before a stage writes them: a row is saved once, untouched.
+        Rows beyond the capacity at the start go with the old arrays.
+        """
+        rows = np.asarray(landmarks, dtype=np.int64)
+        if self._saved_rows:
+            rows = np.array([i for i in rows.tolist() if i not in self._saved_rows], dtype=np.int64)
+        if len(rows) == 0:
+            return
+        links, info, index, neighbours, counts, vector, mean, _ = self._store_arrays
+        saved = _kernels.save_rows(rows, links, info, index, neighbours, counts, vector, mean,
+                                   self._filter_arrays[1], self._filter_arrays[2])  # fmt: skip
+        self._saved.append(saved)
+        self._saved_rows.update(saved[0].tolist())
+
+    def save_mean(self) -> None:
+        """Save the whole mean (for exact recovery, which costs O(n^1.5) anyway)."""
+        if self._full_mean is None:
+            self._full_mean = self._store_arrays[6].copy()
+
+    def save_queue(self) -> None:
+        """Save copies of the recovery queue's arrays (the plain recovery's way; O(n))."""
+        if self._queue_copy is None:
+            self._queue_copy = (self._queue[0].copy(), self._queue[1].copy())
+
+    def log_wavefront(self, queue: RecoveryQueue, undo: tuple) -> None:
+        """Keep the undo log of one compiled wavefront recovery on ``queue``'s arrays."""
+        self._wavefront_logs.append((queue.items, queue.queued, queue.state, undo))
+
+    def restore(self) -> None:
+        """Put the filter back as it was when the journal was opened."""
+        filt, store = self._filter, self._filter._store
+        for items, queued, state, (kind, index, value, count) in reversed(self._wavefront_logs):
+            _kernels.undo_wavefront(store.mean, items, queued, state, kind, index, value, int(count[0]))
+        for name, array in zip(self._STORE_ARRAYS, self._store_arrays):
+            setattr(store, name, array)
+        for name, array in zip(self._FILTER_ARRAYS, self._filter_arrays):
+            setattr(filt, name, array)
+        store.num_landmarks, filt._update_count, filt._round_robin, counters = self._scalars
+        for name, value in zip(filt._COUNTERS, counters):
+            setattr(filt, name, value)
+        store.robot_info[:], store.information_vector[:3], store.mean[:3] = self._robot
+        if self._full_mean is not None:
+            store.mean[:] = self._full_mean
+        links, info, index, neighbours, counts, vector, mean, _ = self._store_arrays
+        for saved in self._saved:
+            _kernels.restore_rows(*saved, links, info, index, neighbours, counts, vector, mean,
+                                  self._filter_arrays[1], self._filter_arrays[2])  # fmt: skip
+        queue = filt._queue
+        queue.items, queue.queued, queue.state = self._queue[:3]
+        queue.state[:] = self._queue[3]
+        if self._queue_copy is not None:
+            queue.items[:], queue.queued[:] = self._queue_copy
+
+
 def recover_mean_exact(store: InformationStore) -> None:
     """``mu = Omega^-1 xi`` by a sparse factorisation (``SEIF.md`` section 4, exact).
 
@@ -273,12 +507,24 @@ class SEIF(SlamFilter):
         each update; ``None`` never sparsifies (the SEIF is then the exact
         EIF). More than ``k`` stay active only when more than ``k`` landmarks
         were observed in the same update.
-    mean_recovery : {"amortized", "exact"}, default "amortized"
-        ``"amortized"``: constant-time coordinate descent on the active
-        landmarks, ``recovery_landmarks`` passive ones in round robin, and the
-        robot. ``"exact"``: a sparse solve of ``Omega mu = xi`` every update.
+    mean_recovery : {"wavefront", "amortized", "exact"}, default "wavefront"
+        ``"wavefront"``: constant-time block coordinate descent that follows
+        the correction through the map (:func:`recover_mean_wavefront`):
+        the landmarks the update touched, ``recovery_landmarks`` passive ones
+        in round robin and the robot, then up to ``recovery_budget`` landmarks
+        from the queue of those whose neighbours moved. ``"amortized"``:
+        Thrun's recovery (:func:`recover_mean_amortized`), the active
+        landmarks, ``recovery_landmarks`` passive ones in round robin and the
+        robot; it lags behind loop closures (``SeifExplore-v0`` runs it).
+        ``"exact"``: a sparse solve of ``Omega mu = xi`` every update.
     recovery_landmarks : int, default 8
-        Passive landmarks refined per update by amortized recovery.
+        Passive landmarks refined per update in round robin.
+    recovery_budget : int, default 128
+        Queued landmarks relaxed per update by the wavefront recovery.
+    recovery_relaxation : float, default 1.8
+        Over-relaxation ``w`` in ``(0, 2)`` of the queued landmarks' steps.
+    recovery_tolerance : float, default 1e-4
+        A landmark whose mean moves more than this (metres) queues its neighbours.
     implementation : {"compiled", "reference"}, default "compiled"
         Compiled kernels, or the plain numpy functions of this module
         (slow; for checking and reading).
@@ -288,15 +534,24 @@ class SEIF(SlamFilter):
     One ``predict`` is the motion update; one ``update`` is the measurement
     update, then mean recovery, then sparsification (which keeps the
     mean). See ``SEIF.md`` for the equations and the module functions for
-    each step.
+    each step. A step that fails at any stage (for example a block that is
+    not positive definite) raises and leaves the filter bit-identical
+    (:class:`UpdateJournal`).
     """
 
     OPTIONS: ClassVar[dict[str, Any]] = {
         "max_active": 8,
-        "mean_recovery": "amortized",
+        "mean_recovery": "wavefront",
         "recovery_landmarks": 8,
+        "recovery_budget": 128,
+        "recovery_relaxation": 1.8,
+        "recovery_tolerance": 1e-4,
         "implementation": "compiled",
     }
+    #: Recovery methods (``mean_recovery``).
+    MEAN_RECOVERIES: ClassVar[tuple[str, ...]] = ("wavefront", "amortized", "exact")
+    #: Counters of subclasses that a failed step restores with the rest.
+    _COUNTERS: ClassVar[tuple[str, ...]] = ()
 
     def _check_options(self, options: dict[str, Any]) -> None:
         max_active = options["max_active"]
@@ -305,13 +560,20 @@ class SEIF(SlamFilter):
                 raise TypeError(f"max_active must be a positive int or None, got {type(max_active).__name__}")
             if max_active < 1:
                 raise ValueError(f"max_active must be a positive int or None, got {max_active}")
-        if options["mean_recovery"] not in ("amortized", "exact"):
-            raise ValueError(f"mean_recovery must be 'amortized' or 'exact', got {options['mean_recovery']!r}")
-        count = options["recovery_landmarks"]
-        if isinstance(count, bool) or not isinstance(count, (int, np.integer)):
-            raise TypeError(f"recovery_landmarks must be a non-negative int, got {type(count).__name__}")
-        if count < 0:
-            raise ValueError(f"recovery_landmarks must be a non-negative int, got {count}")
+        if options["mean_recovery"] not in self.MEAN_RECOVERIES:
+            raise ValueError(f"mean_recovery must be one of {self.MEAN_RECOVERIES}, got {options['mean_recovery']!r}")
+        for name in ("recovery_landmarks", "recovery_budget"):
+            count = options[name]
+            if isinstance(count, bool) or not isinstance(count, (int, np.integer)):
+                raise TypeError(f"{name} must be a non-negative int, got {type(count).__name__}")
+            if count < 0:
+                raise ValueError(f"{name} must be a non-negative int, got {count}")
+        for name, low, high in (("recovery_relaxation", 0.0, 2.0), ("recovery_tolerance", 0.0, np.inf)):
+            value = options[name]
+            if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
+                raise TypeError(f"{name} must be a number, got {type(value).__name__}")
+            if not (low < value < high or (name == "recovery_tolerance" and value == 0.0)):
+                raise ValueError(f"{name} must lie in ({low}, {high}), got {value!r}")
         if options["implementation"] not in ("compiled", "reference"):
             raise ValueError(f"implementation must be 'compiled' or 'reference', got {options['implementation']!r}")
 
@@ -319,6 +581,9 @@ class SEIF(SlamFilter):
         self.max_active: int | None = None if self.options["max_active"] is None else int(self.options["max_active"])
         self.mean_recovery: str = self.options["mean_recovery"]
         self.recovery_landmarks = int(self.options["recovery_landmarks"])
+        self.recovery_budget = int(self.options["recovery_budget"])
+        self.recovery_relaxation = float(self.options["recovery_relaxation"])
+        self.recovery_tolerance = float(self.options["recovery_tolerance"])
         self._compiled = self.options["implementation"] == "compiled"
         self._store = InformationStore()
         self._store.robot_info[:] = scipy.linalg.cho_solve(scipy.linalg.cho_factor(pose_cov), np.eye(3))
@@ -331,9 +596,19 @@ class SEIF(SlamFilter):
         self._last_observed: IndexArray = np.zeros(self._store.capacity, dtype=np.int64)
         self._update_count = 0
         self._round_robin = 0
+        self._queue = RecoveryQueue(self._store.capacity)
+        self._journal: UpdateJournal | None = None
 
     # -- step 1 ------------------------------------------------------------------
     def _predict(self, control: FloatArray, dt: float) -> None:
+        journal = UpdateJournal(self, self._active)  # the motion update writes the robot and its active rows
+        try:
+            self._motion_update(control, dt)
+        except BaseException:
+            journal.restore()
+            raise
+
+    def _motion_update(self, control: FloatArray, dt: float) -> None:
         store = self._store
         delta, jacobian, noise = self._linearize(store.mean[:3], control, dt)
         if self._compiled:
@@ -353,22 +628,40 @@ class SEIF(SlamFilter):
 
     # -- steps 2-4 ---------------------------------------------------------------
     def _update(self, ranges: FloatArray, bearings: FloatArray, indices: IndexArray, is_new: NDArray[np.bool_]) -> None:
-        store = self._store
+        # every stage writes into the rows of the robot, the active and the observed landmarks, or logs
+        journal = self._journal = UpdateJournal(self, np.concatenate([self._active, indices]))
+        try:
+            self._measurement_step(ranges, bearings, indices, is_new)
+        except BaseException:
+            journal.restore()
+            raise
+        finally:
+            self._journal = None
+
+    def _measurement_step(
+        self, ranges: FloatArray, bearings: FloatArray, indices: IndexArray, is_new: NDArray[np.bool_]
+    ) -> None:
+        """Steps 2-4 (inside a transaction): measurement update, mean recovery, sparsification."""
         if is_new.any():
-            # zero information of their own: the measurement below supplies it (SEIF.md, sensor)
-            inverse = getattr(self.sensor, "inverse_trusted", self.sensor.inverse)
-            store.add_landmarks(inverse(store.mean[:3], ranges[is_new], bearings[is_new]))
-            if store.capacity > len(self._last_observed):
-                self._last_observed = np.concatenate(
-                    [self._last_observed, np.zeros(store.capacity - len(self._last_observed), dtype=np.int64)]
-                )
-                self._is_active = np.concatenate(
-                    [self._is_active, np.zeros(store.capacity - len(self._is_active), dtype=bool)]
-                )
+            self._add_landmarks(ranges[is_new], bearings[is_new])
         self._update_count += 1
         self._incorporate(ranges, bearings, indices)
         self._recover_mean()
         self._sparsify()
+
+    def _add_landmarks(self, ranges: FloatArray, bearings: FloatArray) -> None:
+        """Append new landmarks at the inverse sensor model's positions, with zero information.
+
+        The measurement that follows supplies their information (``SEIF.md``, sensor).
+        """
+        store = self._store
+        inverse = getattr(self.sensor, "inverse_trusted", self.sensor.inverse)
+        store.add_landmarks(inverse(store.mean[:3], ranges, bearings))
+        grow = store.capacity - len(self._last_observed)
+        if grow > 0:
+            self._last_observed = np.concatenate([self._last_observed, np.zeros(grow, dtype=np.int64)])
+            self._is_active = np.concatenate([self._is_active, np.zeros(grow, dtype=bool)])
+        self._queue.grow(store.capacity)
 
     def _incorporate(
         self, ranges: FloatArray, bearings: FloatArray, indices: IndexArray, weight: float = 1.0
@@ -399,10 +692,38 @@ class SEIF(SlamFilter):
 
     def _recover_mean(self) -> None:
         store = self._store
+        journal = self._journal
         if self.mean_recovery == "exact":
+            if journal is not None:
+                journal.save_mean()
             recover_mean_exact(store)
+        elif self.mean_recovery == "wavefront":
+            seeds = self._passive_batch()
+            if self._compiled:
+                log_size = (len(seeds) + len(self._active) + self.recovery_budget) * (2 + store.degree) + 1
+                undo = (np.empty(log_size, np.int8), np.empty(log_size, np.int64), np.empty((log_size, 2)),
+                        np.zeros(1, np.int64))  # fmt: skip
+                if journal is not None:
+                    journal.log_wavefront(self._queue, undo)
+                queue = self._queue
+                _kernels.recover_mean_wavefront(
+                    store.robot_info, store.robot_links, store.landmark_info,
+                    store.neighbour_index, store.neighbour_info, store.neighbour_count,
+                    store.information_vector, store.mean, store.block_position, self._active, seeds,
+                    queue.items, queue.queued, queue.state, self.recovery_budget, self.recovery_relaxation, self.recovery_tolerance, *undo,
+                )  # fmt: skip
+            else:
+                if journal is not None:  # the plain path (for checking, not speed) saves copies instead of logging
+                    journal.save_mean()
+                    journal.save_queue()
+                recover_mean_wavefront(
+                    store, self._queue, self._active, seeds,
+                    self.recovery_budget, self.recovery_relaxation, self.recovery_tolerance,
+                )  # fmt: skip
         else:
             landmarks = np.concatenate([self._passive_batch(), self._active])
+            if journal is not None:
+                journal.save_landmarks(landmarks)
             if self._compiled:
                 _kernels.recover_mean(
                     store.robot_info, store.robot_links, store.landmark_info,
@@ -424,6 +745,7 @@ class SEIF(SlamFilter):
         return batch[~self._is_active[batch]]
 
     def _sparsify(self) -> None:
+        """``SEIF.md`` section 3: deactivate the landmarks observed longest ago until ``k`` remain."""
         if self.max_active is None or len(self._active) <= self.max_active:
             return
         # the landmarks observed longest ago go first, never one observed in this update

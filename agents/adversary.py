@@ -45,7 +45,7 @@ hardly move: the gap is zero for a robot that sees little.
 >>> import gymnasium as gym
 >>> import seif_gym
 >>> from agents.adversary import SeifVsEkfReward
->>> env = SeifVsEkfReward(gym.make("SeifExplore-v0", max_episode_steps=5))
+>>> env = SeifVsEkfReward(gym.make("SeifExplore-v1", max_episode_steps=5))
 >>> _, info = env.reset(seed=0)
 >>> _, reward, _, _, info = env.step(env.action_space.sample())
 >>> sorted(k for k in info if k in ("ekf_map_error", "map_error_gap"))

@@ -3,7 +3,7 @@
 .. code-block:: bash
 
     python -m agents.evaluate --agents random,frontier,revisit,info_gain,runs/ppo/model.zip \\
-        --episodes 10 --seed 1000 [--env SeifExplore-v0] [--env-kwargs '{"layout": "loop"}'] [--out DIR]
+        --episodes 10 --seed 1000 [--env SeifExplore-v1] [--env-kwargs '{"layout": "loop"}'] [--out DIR]
 
 Every agent runs ``N`` episodes on the seeds ``S, S+1, …, S+N−1`` (the same
 for every agent; ``env.reset(seed=s)`` fixes the landmark layout, the start
@@ -324,7 +324,7 @@ def evaluate_agents(
     agent_specs: Sequence[str],
     episodes: int,
     seed: int,
-    env_id: str = "SeifExplore-v0",
+    env_id: str = "SeifExplore-v1",
     env_kwargs: Mapping[str, Any] | None = None,
     *,
     verbose: bool = False,
@@ -480,7 +480,7 @@ def _parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--episodes", type=int, default=10, help="episodes per agent (default 10)")
     parser.add_argument("--seed", type=int, default=0, help="seed of the first episode (default 0)")
-    parser.add_argument("--env", default="SeifExplore-v0", help="registered env id (default SeifExplore-v0)")
+    parser.add_argument("--env", default="SeifExplore-v1", help="registered env id (default SeifExplore-v1)")
     parser.add_argument("--env-kwargs", default="{}", help="JSON object of gym.make keyword arguments")
     parser.add_argument("--out", default="eval", help="output folder (default ./eval)")
     return parser

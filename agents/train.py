@@ -2,8 +2,8 @@
 
 Usage::
 
-    python -m agents.train --algo ppo --env SeifExplore-v0 --timesteps 2000000 --out runs/ppo
-    python -m agents.train --env SeifExplore-v0 --wrapper agents.adversary:SeifVsEkfReward --out runs/adversary
+    python -m agents.train --algo ppo --env SeifExplore-v1 --timesteps 2000000 --out runs/ppo
+    python -m agents.train --env SeifExplore-v1 --wrapper agents.adversary:SeifVsEkfReward --out runs/adversary
 
 Hyperparameters come from ``agents/hyperparams/<algo>.yml`` (rl-zoo3's
 format: one entry per env id with ``n_envs``, ``normalize``,
@@ -247,7 +247,7 @@ def train(config: TrainConfig):
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--algo", choices=ALGOS, default="ppo")
-    parser.add_argument("--env", default="SeifExplore-v0", help="a registered env id")
+    parser.add_argument("--env", default="SeifExplore-v1", help="a registered env id")
     parser.add_argument("--env-kwargs", default=None, help='JSON dict passed to gym.make, e.g. \'{"layout": "loop"}\'')
     parser.add_argument("--timesteps", type=int, default=None, help="default: n_timesteps of the YAML entry")
     parser.add_argument("--out", required=True, help="output directory")

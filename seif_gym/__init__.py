@@ -19,9 +19,12 @@ Versions
 --------
 * ``-v1`` (seif_gym 0.2): the filter's mean recovery is the wavefront
   recovery (``mean_recovery="wavefront"``, the SEIF's and ESEIF's default),
-  which keeps up with loop closures (``benchmarks/fidelity.py``).
+  which keeps up with loop closures (``benchmarks/fidelity.py``); with
+  ``data_association="ml"`` the joint-compatibility associator
+  (``ml_association="joint"``).
 * ``-v0`` (seif_gym 0.1): Thrun's round-robin amortized recovery
-  (``mean_recovery="amortized"``), kept so that results measured on it
+  (``mean_recovery="amortized"``) and the individual-compatibility associator
+  (``ml_association="individual"``), kept so that results measured on it
   (the shipped policies, the robustness findings) can be reproduced bit for bit.
 """
 
@@ -40,7 +43,10 @@ _LAYOUTS: dict[str, tuple[dict, int]] = {
 }
 
 #: What each version pins beyond the layout (kwargs of ``SeifExploreEnv``).
-VERSIONS: dict[int, dict] = {0: {"mean_recovery": "amortized"}, 1: {"mean_recovery": "wavefront"}}
+VERSIONS: dict[int, dict] = {
+    0: {"mean_recovery": "amortized", "ml_association": "individual"},
+    1: {"mean_recovery": "wavefront", "ml_association": "joint"},
+}
 
 #: The newest version, what ``SeifExploreEnv()`` builds with its defaults.
 LATEST_VERSION = max(VERSIONS)

@@ -17,7 +17,7 @@ for bit.
 >>> import numpy as np
 >>> import seif_gym
 >>> from seif_gym.episodes import Episode, EpisodeRecorder, replay
->>> env = EpisodeRecorder(gym.make("SeifExplore-v0", max_episode_steps=10))
+>>> env = EpisodeRecorder(gym.make("SeifExplore-v1", max_episode_steps=10))
 >>> _ = env.reset(seed=3)
 >>> _ = env.action_space.seed(3)
 >>> done = False
@@ -54,8 +54,8 @@ import gymnasium as gym
 import numpy as np
 from numpy.typing import NDArray
 
-from seif_gym.envs.explore import SeifExploreEnv
-from seif_gym.envs.explore import map_error as _env_map_error  # the env's E_t, reused for identical bits
+from seif_gym.envs.explore import SeifExploreEnv, filter_map_error  # the env's E_t, reused for identical bits
+from seif_gym.slam.association import AssociationAudit, make_associator
 from seif_gym.slam import FILTERS, RangeBearingSensor, SlamFilter, VelocityMotionModel
 
 __all__ = ["Episode", "EpisodeRecorder", "ReplayResult", "replay", "episode_models"]
@@ -481,9 +481,12 @@ class ReplayResult:
         The env's map error ``E_t`` of the estimate, computed as
         ``SeifExploreEnv.map_error`` does.
     step_seconds : ndarray (T,)
-        Wall time of each ``predict`` + ``update``.
+        Wall time of each ``predict`` + ``update`` (association included).
     filter : SlamFilter
         The filter, in its final state.
+    association_errors : int
+        With association re-run: its wrong, duplicate or discarded decisions
+        over the episode (``AssociationAudit``); -1 with the true ids.
     """
 
     poses: FloatArray
@@ -492,20 +495,14 @@ class ReplayResult:
     map_errors: FloatArray
     step_seconds: FloatArray
     filter: Any
+    association_errors: int = -1
 
     def __post_init__(self) -> None:
         for item in fields(self):
-            if item.name != "filter":
+            if item.name not in ("filter", "association_errors"):
                 array = np.array(getattr(self, item.name), copy=True)
                 array.setflags(write=False)
                 object.__setattr__(self, item.name, array)
-
-
-def _map_error(filt, landmarks: FloatArray, d_cap) -> float:
-    """``SeifExploreEnv.map_error`` of ``filt``'s map: the env's own function, so the same bits."""
-    estimates = np.ascontiguousarray(filt.landmarks, dtype=np.float64).reshape(-1, 2)
-    ids = np.ascontiguousarray(filt.landmark_ids, dtype=np.int64).reshape(-1)
-    return float(_env_map_error(estimates, landmarks, ids, d_cap))
 
 
 #: The env's filter options an episode's config holds, and what an episode recorded before the option existed ran.
@@ -534,6 +531,7 @@ def replay(
     *,
     filter_factory: Callable[..., Any] | None = None,
     callback: Callable[[int, Any], None] | None = None,
+    association: str | None = None,
     **options: Any,
 ) -> ReplayResult:
     """Run ``episode``'s controls and measurements through a filter.
@@ -544,6 +542,12 @@ def replay(
     control, dt)`` and ``update(ranges, bearings, ids)``, exactly the calls
     of the env. Replaying with the env's filter and options therefore
     reproduces ``episode.estimated_poses`` and ``episode.map_errors``.
+
+    An episode recorded with ``data_association="ml"`` is replayed with the
+    association re-run (a fresh associator of the episode's
+    ``ml_association`` preset, scored against the recorded true ids as the
+    env does): the filter never sees the true ids unless ``association="known"``
+    asks for them.
 
     Parameters
     ----------
@@ -564,6 +568,10 @@ def replay(
         Filter options. If the filter takes ``max_active`` and ``mean_recovery``
         (the SEIF, the ESEIF) and none is given, the episode's config's are used, as the
         env does.
+    association : {"known", "ml"}, optional
+        ``"known"``: the filter gets the recorded true ids; ``"ml"``: the
+        ids come from maximum-likelihood association of the measurements;
+        ``None`` (default): as the episode was recorded (``config["data_association"]``).
 
     Returns
     -------
@@ -584,6 +592,10 @@ def replay(
     if callback is not None and not callable(callback):
         raise TypeError(f"callback must be callable, got {type(callback).__name__}")
     config = episode.config
+    if association is None:
+        association = str(config.get("data_association", "known"))
+    if association not in ("known", "ml"):
+        raise ValueError(f"association must be 'known', 'ml' or None, got {association!r}")
     options = _default_options(factory, config, options)
     motion, sensor = episode_models(config)
     filt = factory(motion, sensor, episode.true_poses[0].copy(), **options)
@@ -594,12 +606,23 @@ def replay(
     map_errors = np.empty(steps + 1)
     seconds = np.empty(steps)
 
+    # an episode of 0.1 has no ml_association: it ran the individual-compatibility associator
+    associator = make_associator(str(config.get("ml_association", "individual"))) if association == "ml" else None
+    audit = AssociationAudit() if association == "ml" else None
+
     def measurement(t: int):
         return tuple(np.array(part) for part in episode.measurements(t))  # writable copies, like the env's
 
-    filt.update(*measurement(0))
+    def update(ranges, bearings, true_ids) -> None:
+        """The env's ``_filter_update``: the true ids, or association scored against them."""
+        if associator is None:
+            filt.update(ranges, bearings, true_ids)
+        else:
+            audit.record(associator, associator.update(filt, ranges, bearings), true_ids)
+
+    update(*measurement(0))
     poses[0] = filt.pose
-    map_errors[0] = _map_error(filt, episode.landmarks, d_cap)
+    map_errors[0] = filter_map_error(filt, episode.landmarks, d_cap, audit)
     if callback is not None:
         callback(0, filt)
     for t in range(steps):
@@ -607,10 +630,10 @@ def replay(
         ranges, bearings, ids = measurement(t + 1)
         started = time.perf_counter()
         filt.predict(control, dt)
-        filt.update(ranges, bearings, ids)
+        update(ranges, bearings, ids)
         seconds[t] = time.perf_counter() - started
         poses[t + 1] = filt.pose
-        map_errors[t + 1] = _map_error(filt, episode.landmarks, d_cap)
+        map_errors[t + 1] = filter_map_error(filt, episode.landmarks, d_cap, audit)
         if callback is not None:
             callback(t + 1, filt)
     return ReplayResult(
@@ -620,4 +643,5 @@ def replay(
         map_errors=map_errors,
         step_seconds=seconds,
         filter=filt,
+        association_errors=-1 if audit is None else int(audit.errors),
     )

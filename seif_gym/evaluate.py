@@ -6,7 +6,8 @@
         --layouts uniform,loop --seeds 5 --seed 0 --steps 300 --out eval/robustness
 
 For every (policy, layout, seed) one episode of ``--env`` (default
-``SeifExplore-v0``, with ``layout=`` the layout and ``max_episode_steps=``
+``SeifExplore-v0``, on which ``docs/robustness.md`` was measured; pass
+``--env SeifExplore-v1`` for the current filters; with ``layout=`` the layout and ``max_episode_steps=``
 ``--steps``) is **recorded once** with :class:`~seif_gym.episodes.EpisodeRecorder`
 (the policy acts on the env's own SEIF, ``max_active=8``, exactly as it
 would in training) and then **replayed** through every filter of
@@ -26,12 +27,13 @@ depend on it.
 Filters (``--filters``, comma separated; default :func:`default_filters`):
 
 =================  ==============================================================
-``seif-kN``        SEIF with ``max_active=N``, amortized mean recovery (the
+``seif-kN``        SEIF with ``max_active=N`` and the env version's mean
+                   recovery (``-v0``: round robin, ``-v1``: wavefront; the
                    env's filter is ``seif-k8``)
 ``seif-kN-exact``  SEIF with ``max_active=N`` and ``mean_recovery="exact"``
 ``seif-exact``     ``seif-k8-exact``
 ``seif-full``      SEIF without sparsification, exact recovery (= EIF = EKF)
-``eseif``          ESEIF with ``max_active=8``, amortized recovery (``eseif-kN``:
+``eseif``          ESEIF with ``max_active=8``, the env version's recovery (``eseif-kN``:
                    ``max_active=N``; ``eseif-exact``, ``eseif-kN-exact``: exact
                    recovery); in the default set only when ``"eseif"`` is in
                    :data:`seif_gym.slam.FILTERS`

@@ -226,7 +226,7 @@ class BeliefEncoder:
         """The observation of ``filt``'s current belief.
 
         Also keeps the pose covariance it used in :attr:`pose_covariance`
-        (the env's ``info["pose_nees"]`` reuses it).
+        (the env's ``info["pose_nees_blanket"]`` reuses it).
         """
         config = self.config
         pose = filt.pose

@@ -807,8 +807,8 @@ def test_default_episodes_end_by_truncation(filter_name):
 
 # == info keys ========================================================================================
 INFO_KEYS = {
-    "true_pose", "pose_estimate", "pose_error", "map_error", "pose_nees", "landmarks_mapped", "landmarks_total",
-    "active_landmarks", "control", "measurements", "step_time", "wall_contact", "diverged", "executed_control",
+    "true_pose", "pose_estimate", "pose_error", "map_error", "pose_nees", "pose_nees_blanket", "landmarks_mapped",
+    "landmarks_total", "active_landmarks", "control", "measurements", "step_time", "wall_contact", "diverged", "executed_control",
 }  # fmt: skip
 
 
@@ -824,9 +824,15 @@ def check_info(info: dict, env: gym.Env, *, previous_mapped: int = 0) -> None:
         assert np.all(np.isfinite(value)), key
     np.testing.assert_array_equal(info["true_pose"], world.pose)
     np.testing.assert_array_equal(info["pose_estimate"], filt.pose)
-    for key in ("pose_error", "map_error", "pose_nees", "step_time"):
+    for key in ("pose_error", "map_error", "pose_nees", "pose_nees_blanket", "step_time"):
         assert isinstance(info[key], float) and not isinstance(info[key], bool), key
         assert math.isfinite(info[key]) and info[key] >= 0.0, (key, info[key])
+    # pose_nees with the filter's own (exact marginal) covariance, by hand; the blanket one with the observation's
+    error = info["true_pose"] - info["pose_estimate"]
+    error[2] = (error[2] + math.pi) % (2 * math.pi) - math.pi
+    assert info["pose_nees"] == pytest.approx(float(error @ np.linalg.solve(filt.pose_covariance, error)), rel=1e-9)
+    blanket = unwrapped.encoder.pose_covariance
+    assert info["pose_nees_blanket"] == pytest.approx(float(error @ np.linalg.solve(blanket, error)), rel=1e-9)
     assert info["pose_error"] == pytest.approx(math.hypot(*(info["true_pose"][:2] - info["pose_estimate"][:2])), abs=1e-12)
     assert 0.0 <= info["map_error"] <= unwrapped.reward_config.d_cap
     assert info["map_error"] == pytest.approx(unwrapped.map_error(), abs=1e-15)
@@ -1198,3 +1204,19 @@ def test_100k_random_steps_no_nan_no_memory_growth():
     print(f"\n100k steps: {elapsed:.1f} s, {episodes} episodes, {walls} wall contacts, RSS growth {growth / 2**20:.2f} MiB")
     assert episodes >= (total - warm_up) // 400 - 1
     assert growth < 8 * 2**20, f"RSS grew by {growth / 2**20:.1f} MiB"
+
+
+def test_pose_nees_uses_the_filters_own_covariance():
+    """The SEIF's exact marginal is wider than the blanket covariance: pose_nees <= pose_nees_blanket; equal for the EKF."""
+    for filter_name in ("seif", "ekf"):
+        env = make(filter=filter_name)
+        env.reset(seed=4)
+        env.action_space.seed(4)
+        for _ in range(150):
+            _, _, _, _, info = env.step(env.action_space.sample())
+            check_info(info, env)
+            if filter_name == "ekf":
+                assert info["pose_nees"] == pytest.approx(info["pose_nees_blanket"], rel=1e-9)
+            else:
+                assert info["pose_nees"] <= info["pose_nees_blanket"] * (1 + 1e-9)
+        env.close()

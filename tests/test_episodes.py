@@ -21,6 +21,11 @@ STEPS = 100
 
 #: (env id, env kwargs): the env's own filter of each is replayed and must match exactly.
 CASES = [
+    ("SeifExplore-v1", ()),
+    ("SeifExploreLoop-v1", (("max_active", 4),)),
+    ("SeifExploreLoop-v1", (("filter", "eseif"),)),
+    ("SeifExploreLoop-v1", (("data_association", "ml"),)),
+    ("SeifExploreLoop-v0", (("data_association", "ml"),)),
     ("SeifExplore-v0", ()),
     ("SeifExplore-v0", (("max_active", 4),)),
     ("SeifExplore-v0", (("filter", "ekf"),)),
@@ -69,7 +74,7 @@ def case_id(case) -> str:
 
 
 # -- recording -------------------------------------------------------------------------
-@pytest.mark.parametrize("case", CASES[:1] + CASES[4:5], ids=case_id)
+@pytest.mark.parametrize("case", CASES[5:6] + CASES[9:10], ids=case_id)
 def test_episode_matches_the_env_infos_at_every_step(case):
     rec = record(*case)
     episode, infos = rec.episode, rec.infos
@@ -207,6 +212,11 @@ def test_replay_with_the_env_filter_is_bit_exact(case):
     np.testing.assert_array_equal(result.landmarks, rec.final_landmarks)
     assert result.step_seconds.shape == (episode.steps,) and np.all(result.step_seconds >= 0)
     assert not result.poses.flags.writeable
+    if episode.config["data_association"] == "ml":
+        assert result.association_errors >= 0
+        assert result.association_errors == sum(info["association_errors"] for info in rec.infos)
+    else:
+        assert result.association_errors == -1
     if episode.config["filter"] == "seif":
         # the env's max_active is the default; passing it explicitly is the same run
         assert result.filter.max_active == episode.config["max_active"]
@@ -221,6 +231,29 @@ def test_replay_of_a_loaded_episode_is_bit_exact(tmp_path):
     result = replay(loaded)
     np.testing.assert_array_equal(result.poses, episode.estimated_poses)
     np.testing.assert_array_equal(result.map_errors, episode.map_errors)
+
+
+def test_ml_episode_replays_with_association_not_the_true_ids():
+    """An ml episode re-runs the association; the true ids only when asked for, and then differently."""
+    episode = record("SeifExploreLoop-v1", (("data_association", "ml"),), seed=3, steps=150).episode
+    fed: list = []
+
+    class Watched(SEIF):
+        def update_trusted(self, ranges, bearings, ids):
+            fed.append(np.array(ids))
+            super().update_trusted(ranges, bearings, ids)
+
+    result = replay(episode, filter_factory=Watched)
+    np.testing.assert_array_equal(result.poses, episode.estimated_poses)
+    # the filter was given the associator's ids (fresh ones from 0), not the simulator's ids
+    true = [np.asarray(episode.measurements(t)[2]) for t in range(episode.steps + 1)]
+    assert len(fed) == len(true)
+    assert any(not np.array_equal(f, t) for f, t in zip(fed, true))
+    known = replay(episode, association="known")
+    assert known.association_errors == -1
+    assert not np.array_equal(known.landmark_ids, result.landmark_ids) or not np.array_equal(known.poses, result.poses)
+    with pytest.raises(ValueError, match="association"):
+        replay(episode, association="oracle")
 
 
 def logging_filter(cls, log: list):

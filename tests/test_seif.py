@@ -378,3 +378,14 @@ def test_memory_is_linear_in_the_map():
     # and the information matrix stays sparse: bounded links per landmark
     nnz = large.information_matrix.nnz
     assert nnz < 200 * large.num_landmarks
+
+
+@pytest.mark.parametrize("dense_up_to", [0, 10_000], ids=["sparse-lu", "dense-cholesky"])
+def test_marginal_covariances_are_exact(busy_seif, monkeypatch, dense_up_to):
+    """Both paths of the exact marginals equal the inverse of the dense information matrix."""
+    monkeypatch.setattr(SEIF, "DENSE_MARGINALS_UP_TO", dense_up_to)
+    inverse = np.linalg.inv(dense(busy_seif))
+    np.testing.assert_allclose(busy_seif.pose_covariance, inverse[:3, :3], rtol=1e-9, atol=1e-12)
+    landmark = int(busy_seif.landmark_ids[5])
+    rows = slice(3 + 2 * 5, 5 + 2 * 5)
+    np.testing.assert_allclose(busy_seif.landmark_covariance(landmark), inverse[rows, rows], rtol=1e-9, atol=1e-12)

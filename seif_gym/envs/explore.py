@@ -17,11 +17,14 @@ from numpy.typing import NDArray
 
 from seif_gym.observation import BeliefEncoder, ObservationConfig
 from seif_gym.slam import FILTERS, SEIF, RangeBearingSensor, SlamFilter, VelocityMotionModel, make_filter
-from seif_gym.slam.association import AssociationAudit, Associator
+from seif_gym.slam.association import ASSOCIATOR_PRESETS, AssociationAudit, make_associator
 from seif_gym.slam.models import wrap_angle
 from seif_gym.world import LAYOUTS, World, WorldConfig, make_landmarks
 
-__all__ = ["Measurements", "SeifExploreEnv", "RewardConfig", "RobotConfig", "SensorConfig", "FilterConfig", "map_error"]
+__all__ = [
+    "Measurements", "SeifExploreEnv", "RewardConfig", "RobotConfig", "SensorConfig", "FilterConfig",
+    "map_error", "filter_map_error",
+]  # fmt: skip
 
 FloatArray = NDArray[np.float64]
 
@@ -86,6 +89,7 @@ class FilterConfig:
     max_active: int | None = 8
     data_association: str = "known"
     mean_recovery: str = "wavefront"
+    ml_association: str = "joint"
 
     def __post_init__(self) -> None:
         if self.filter not in FILTERS:
@@ -94,6 +98,8 @@ class FilterConfig:
             raise ValueError(f"mean_recovery must be one of {SEIF.MEAN_RECOVERIES}, got {self.mean_recovery!r}")
         if self.data_association not in ("known", "ml"):
             raise ValueError(f"data_association must be 'known' or 'ml', got {self.data_association!r}")
+        if self.ml_association not in ASSOCIATOR_PRESETS:
+            raise ValueError(f"ml_association must be one of {tuple(ASSOCIATOR_PRESETS)}, got {self.ml_association!r}")
 
 
 @dataclass(frozen=True)
@@ -128,6 +134,23 @@ def map_error(estimates: FloatArray, truth: FloatArray, ids: NDArray[np.int64], 
         Cap of one landmark's error.
     """
     return float(_map_error(np.ascontiguousarray(estimates, dtype=np.float64), truth, np.asarray(ids, dtype=np.int64), float(d_cap)))
+
+
+def filter_map_error(filt: SlamFilter, truth: FloatArray, d_cap: float, audit: AssociationAudit | None = None) -> float:
+    """:func:`map_error` of ``filt``'s map (``E_t`` of the env's reward).
+
+    With an ``audit`` (unknown correspondences) the filter's landmarks carry
+    the associator's ids: each is matched to the true landmark it was
+    created from, and only the first landmark made for a true one counts
+    (duplicates do not reduce the error).
+    """
+    ids, estimates = filt.landmark_ids, filt.landmarks
+    if audit is not None:
+        true = audit.true_ids(ids)
+        _, first = np.unique(true, return_index=True)
+        keep = first[true[first] >= 0]
+        ids, estimates = true[keep], estimates[keep]
+    return map_error(estimates, truth, ids, d_cap)
 
 
 @njit(cache=True)
@@ -259,7 +282,8 @@ class SeifExploreEnv(gym.Env):
     | `pose_estimate` | (3,) float | the filter's pose estimate |
     | `pose_error` | float | distance between true and estimated position, m |
     | `map_error` | float | `E_t` of Rewards |
-    | `pose_nees` | float | NEES of the pose against the covariance of the observation |
+    | `pose_nees` | float | NEES of the pose against the filter's own `pose_covariance` (the exact marginal of its belief; for the SEIF a factorisation of Ω, so it costs more than the rest of the filter step on large maps) |
+    | `pose_nees_blanket` | float | NEES against the covariance the observation shows (`local_marginals`: for the SEIF the Markov-blanket covariance, tighter than the marginal; the same as `pose_nees` for the exact filters) |
     | `landmarks_mapped`, `landmarks_total` | int | landmarks in the filter's map, and in the world |
     | `active_landmarks` | tuple of int | ids of the landmarks linked to the robot (all mapped ones for the exact filters) |
     | `control` | (2,) float | commanded `(v, ω)` after scaling and clipping |
@@ -291,6 +315,7 @@ class SeifExploreEnv(gym.Env):
     | `max_speed`, `max_turn_rate` | 1.0, 1.0 | action scaling, m/s and rad/s |
     | `filter` | `"seif"` | any of `seif_gym.slam.FILTERS` |
     | `max_active` | 8 | SEIF's active-landmark bound `k` (ignored by the exact filters) |
+    | `ml_association` | `"joint"` | with `data_association="ml"`: the associator preset (`seif_gym.slam.association.ASSOCIATOR_PRESETS`): `"joint"` (joint compatibility, `-v1`) or `"individual"` (`-v0`) |
     | `mean_recovery` | `"wavefront"` | SEIF/ESEIF mean recovery: `"wavefront"` (`-v1`), Thrun's round-robin `"amortized"` (`-v0`), or `"exact"` (a sparse solve every step) |
     | `data_association` | `"known"` | `"known"`: the filter gets the true landmark ids; `"ml"`: maximum-likelihood association (`seif_gym.slam.Associator`: χ² gate, new-landmark threshold, mutual exclusion; SEIF covariances from the Markov blanket), so that agents and filters face association errors |
     | `reward` | `"map_error"` | or `"information_gain"` |
@@ -301,6 +326,18 @@ class SeifExploreEnv(gym.Env):
     | `coverage_resolution` | 0.5 | cell size of the swept-area grid, metres |
     | `measure_time` | `False` | fill `info["step_time"]` with the wall-clock seconds spent in the filter (otherwise 0.0: wall-clock time would make seeded episodes irreproducible) |
     | `render_mode` | `None` | `"rgb_array"` or `"human"` |
+
+    ## Version History
+
+    * v1 (seif_gym 0.2): the SEIF and ESEIF recover their mean with the
+      wavefront recovery (`mean_recovery="wavefront"`), which keeps up with
+      loop closures; with `data_association="ml"` the joint-compatibility
+      associator. `info["pose_nees"]` uses the filter's own pose covariance
+      (in every version; `pose_nees_blanket` holds the former value).
+    * v0 (seif_gym 0.1): Thrun's round-robin amortized recovery
+      (`mean_recovery="amortized"`) and the individual-compatibility
+      associator; still registered, reproduces 0.1's observations and rewards
+      bit for bit.
     """
 
     metadata = {"render_modes": ["human", "rgb_array"], "render_fps": 10}
@@ -323,6 +360,7 @@ class SeifExploreEnv(gym.Env):
         max_active: int | None = 8,
         data_association: str = "known",
         mean_recovery: str = "wavefront",
+        ml_association: str = "joint",
         reward: str = "map_error",
         d_cap: float = 2.0,
         wall_penalty: float = 0.005,
@@ -341,8 +379,9 @@ class SeifExploreEnv(gym.Env):
         self.robot_config = RobotConfig(dt=dt, max_speed=max_speed, max_turn_rate=max_turn_rate, motion_noise=tuple(motion_noise))
         self.sensor_config = SensorConfig(sensor_range=sensor_range, fov=fov, sigma_range=sigma_range, sigma_bearing=sigma_bearing)
         self.filter_config = FilterConfig(
-            filter=filter, max_active=max_active, data_association=data_association, mean_recovery=mean_recovery
-        )
+            filter=filter, max_active=max_active, data_association=data_association,
+            mean_recovery=mean_recovery, ml_association=ml_association,
+        )  # fmt: skip
         self.reward_config = RewardConfig(reward=reward, d_cap=d_cap, wall_penalty=wall_penalty, divergence_threshold=divergence_threshold)
         self.observation_config = ObservationConfig(
             nearest_landmarks=nearest_landmarks,
@@ -405,7 +444,7 @@ class SeifExploreEnv(gym.Env):
         self.world = World(config, self.motion, self.sensor, landmarks, start)
         self.filter = make_filter(self.filter_config.filter, self.motion, self.sensor, start, **self._filter_options())
         ml = self.filter_config.data_association == "ml"
-        self.associator = Associator() if ml else None
+        self.associator = make_associator(self.filter_config.ml_association) if ml else None
         self.audit = AssociationAudit() if ml else None
         self._association_errors = 0
         self.encoder.reset()
@@ -483,13 +522,7 @@ class SeifExploreEnv(gym.Env):
         from, and only the first landmark made for a true one counts
         (duplicates do not reduce the error).
         """
-        ids, estimates = self.filter.landmark_ids, self.filter.landmarks
-        if self.audit is not None:
-            true = self.audit.true_ids(ids)
-            _, first = np.unique(true, return_index=True)
-            keep = first[true[first] >= 0]
-            ids, estimates = true[keep], estimates[keep]
-        return map_error(estimates, self.world.landmarks, ids, self.reward_config.d_cap)
+        return filter_map_error(self.filter, self.world.landmarks, self.reward_config.d_cap, self.audit)
 
     def _log_det_criterion(self) -> float:
         """``-log det Sigma / dims`` over the whole map (unmapped landmarks at the prior ``d_cap^2``).
@@ -516,7 +549,9 @@ class SeifExploreEnv(gym.Env):
         estimate = filt.pose
         error = world.pose - estimate
         error[2] = wrap_angle(float(error[2]))
-        nees = float(_nees(error, self.encoder.pose_covariance))  # the covariance the observation shows
+        # the filter's own (exact marginal) pose covariance; and the constant-time one the observation shows
+        nees = float(_nees(error, np.ascontiguousarray(filt.pose_covariance)))
+        nees_blanket = float(_nees(error, self.encoder.pose_covariance))
         ranges, bearings, ids = measurement
         return {
             "true_pose": world.pose.copy(),
@@ -524,6 +559,7 @@ class SeifExploreEnv(gym.Env):
             "pose_error": float(math.hypot(error[0], error[1])),
             "map_error": self._map_error,
             "pose_nees": nees,
+            "pose_nees_blanket": nees_blanket,
             "landmarks_mapped": int(filt.num_landmarks),
             "landmarks_total": int(self.world_config.num_landmarks),
             # the exact filters link the robot to every mapped landmark

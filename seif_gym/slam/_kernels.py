@@ -307,28 +307,27 @@ def recover_mean(robot_info, robot_links, landmark_info, neighbour_index, neighb
     """Fast :func:`seif_gym.slam.seif.recover_mean_amortized`."""
     for k in range(landmarks.shape[0]):
         i = landmarks[k]
-        o = 3 + 2 * i
-        r0 = information_vector[o]
-        r1 = information_vector[o + 1]
-        for b in range(3):
-            r0 -= robot_links[i, b, 0] * mean[b]
-            r1 -= robot_links[i, b, 1] * mean[b]
-        for slot in range(neighbour_count[i]):
-            oj = 3 + 2 * neighbour_index[i, slot]
-            r0 -= neighbour_info[i, slot, 0, 0] * mean[oj] + neighbour_info[i, slot, 0, 1] * mean[oj + 1]
-            r1 -= neighbour_info[i, slot, 1, 0] * mean[oj] + neighbour_info[i, slot, 1, 1] * mean[oj + 1]
-        mean[o], mean[o + 1] = _solve_2x2(landmark_info[i], r0, r1)
-    rhs = np.empty(3)
-    for a in range(3):
-        rhs[a] = information_vector[a]
-    for k in range(active.shape[0]):
-        i = active[k]
-        o = 3 + 2 * i
-        for a in range(3):
-            rhs[a] -= robot_links[i, a, 0] * mean[o] + robot_links[i, a, 1] * mean[o + 1]
-    pose = np.linalg.solve(robot_info, rhs)
-    for a in range(3):
-        mean[a] = pose[a]
+        mean[3 + 2 * i], mean[4 + 2 * i] = _landmark_target(
+            robot_links, landmark_info, neighbour_index, neighbour_info, neighbour_count, information_vector, mean, i
+        )
+    relax_robot(robot_info, robot_links, information_vector, mean, active)
+
+
+@njit(cache=True)
+def _landmark_target(robot_links, landmark_info, neighbour_index, neighbour_info, neighbour_count,
+                     information_vector, mean, i):  # fmt: skip
+    """``Omega_ii^-1 (xi_i - sum_{j != i} Omega_ij mu_j)``: where a block Gauss-Seidel step puts landmark ``i``."""
+    o = 3 + 2 * i
+    r0 = information_vector[o]
+    r1 = information_vector[o + 1]
+    for b in range(3):
+        r0 -= robot_links[i, b, 0] * mean[b]
+        r1 -= robot_links[i, b, 1] * mean[b]
+    for slot in range(neighbour_count[i]):
+        oj = 3 + 2 * neighbour_index[i, slot]
+        r0 -= neighbour_info[i, slot, 0, 0] * mean[oj] + neighbour_info[i, slot, 0, 1] * mean[oj + 1]
+        r1 -= neighbour_info[i, slot, 1, 0] * mean[oj] + neighbour_info[i, slot, 1, 1] * mean[oj + 1]
+    return _solve_2x2(landmark_info[i], r0, r1)
 
 
 @njit(cache=True)
@@ -487,16 +486,8 @@ def _relax_landmark(robot_links, landmark_info, neighbour_index, neighbour_info,
                     information_vector, mean, i, relaxation):  # fmt: skip
     """One over-relaxed block Gauss-Seidel step on landmark ``i``; returns the squared move of its mean."""
     o = 3 + 2 * i
-    r0 = information_vector[o]
-    r1 = information_vector[o + 1]
-    for b in range(3):
-        r0 -= robot_links[i, b, 0] * mean[b]
-        r1 -= robot_links[i, b, 1] * mean[b]
-    for slot in range(neighbour_count[i]):
-        oj = 3 + 2 * neighbour_index[i, slot]
-        r0 -= neighbour_info[i, slot, 0, 0] * mean[oj] + neighbour_info[i, slot, 0, 1] * mean[oj + 1]
-        r1 -= neighbour_info[i, slot, 1, 0] * mean[oj] + neighbour_info[i, slot, 1, 1] * mean[oj + 1]
-    new0, new1 = _solve_2x2(landmark_info[i], r0, r1)
+    new0, new1 = _landmark_target(robot_links, landmark_info, neighbour_index, neighbour_info, neighbour_count,
+                                  information_vector, mean, i)  # fmt: skip
     d0 = relaxation * (new0 - mean[o])
     d1 = relaxation * (new1 - mean[o + 1])
     mean[o] += d0

@@ -519,8 +519,11 @@ class SEIF(SlamFilter):
         ``"exact"``: a sparse solve of ``Omega mu = xi`` every update.
     recovery_landmarks : int, default 8
         Passive landmarks refined per update in round robin.
-    recovery_budget : int, default 256
-        Queued landmarks relaxed per update by the wavefront recovery.
+    recovery_budget : int, default 64
+        Queued landmarks relaxed per update by the wavefront recovery. More
+        keeps up better after large corrections but costs time in every update
+        of a long map (a small correction travels far along a chain of
+        landmarks); ``docs/fidelity.md`` measures the trade-off.
     recovery_relaxation : float, default 1.8
         Over-relaxation ``w`` in ``(0, 2)`` of the queued landmarks' steps.
     recovery_tolerance : float, default 1e-4
@@ -543,7 +546,7 @@ class SEIF(SlamFilter):
         "max_active": 8,
         "mean_recovery": "wavefront",
         "recovery_landmarks": 8,
-        "recovery_budget": 256,
+        "recovery_budget": 64,
         "recovery_relaxation": 1.8,
         "recovery_tolerance": 1e-4,
         "implementation": "compiled",

@@ -112,8 +112,15 @@ SEIF_STAGES = [
 ]
 
 
-@pytest.mark.parametrize("call_through", [False, True], ids=["instead", "midway"])
-@pytest.mark.parametrize("module, name, options, stage", SEIF_STAGES, ids=[s[1] + str(i) for i, s in enumerate(SEIF_STAGES)])
+# The compiled motion update (gather, compute, scatter in one kernel) can only fail before it writes: its
+# "midway" case is not a failure that can happen, and the journal of a motion update saves no rows for it.
+SEIF_CASES = [(*stage, through) for stage in SEIF_STAGES for through in (False, True) if not (through and stage[3] == "predict")]
+
+
+@pytest.mark.parametrize(
+    "module, name, options, stage, call_through", SEIF_CASES,
+    ids=[f"{c[1]}-{'midway' if c[4] else 'instead'}" for c in SEIF_CASES],
+)  # fmt: skip
 def test_seif_failure_leaves_filter_unchanged(ring_loop_run, monkeypatch, module, name, options, stage, call_through):
     filt = busy(SEIF, ring_loop_run, 60, max_active=4, **options)
     # a step that sparsifies and sees a new landmark (capacity may grow), so that every stage runs

@@ -455,6 +455,12 @@ def blanket_joint_covariance(robot_info, robot_links, landmark_info, neighbour_i
         rows[4 + 2 * t] = o + 1
     for p in range(count):
         block_position[nodes[p]] = -1
+    return covariance_rows(omega, rows)
+
+
+@njit(cache=True)
+def covariance_rows(omega, rows):
+    """``[omega^-1]`` over ``rows`` x ``rows``: one Cholesky factor, solved for those unit columns only."""
     size = omega.shape[0]
     lower = np.linalg.cholesky(omega)
     # W = L^-1 E for the unit columns E of ``rows``; covariance = W^T W
@@ -471,6 +477,15 @@ def blanket_joint_covariance(robot_info, robot_links, landmark_info, neighbour_i
         for c in range(rows.shape[0]):
             w[a, c] *= inv
     return w.T @ w
+
+
+@njit(cache=True)
+def exact_marginal(robot_info, robot_links, landmark_info, neighbour_index, neighbour_info, neighbour_count,
+                   information_vector, mean, block_position, num_landmarks, rows):  # fmt: skip
+    """Exact ``[Omega^-1]`` over the state rows ``rows``, from the dense ``Omega`` of the whole map (small maps)."""
+    omega, _, _ = gather(robot_info, robot_links, landmark_info, neighbour_index, neighbour_info, neighbour_count,
+                         information_vector, mean, block_position, np.arange(num_landmarks))  # fmt: skip
+    return covariance_rows(omega, rows)
 
 
 
@@ -644,66 +659,71 @@ def undo_wavefront(mean, queue, queued, queue_state, undo_kind, undo_index, undo
 # Journal of a filter step (seif.UpdateJournal): save and restore landmark rows
 # ---------------------------------------------------------------------------
 @njit(cache=True)
-def save_rows(rows, robot_links, landmark_info, neighbour_index, neighbour_info, neighbour_count,
-              information_vector, mean, is_active, last_observed):  # fmt: skip
-    """Copies of every per-landmark value of ``rows`` (those within the arrays' capacity)."""
+def save_rows(rows, start, robot_links, landmark_info, neighbour_index, neighbour_info, neighbour_count,
+              information_vector, mean, is_active, last_observed,
+              saved_rows, saved_links, saved_info, saved_index, saved_neighbours, saved_counts, saved_values,
+              saved_flags, saved_observed):  # fmt: skip
+    """Copy every per-landmark value of ``rows`` into the journal's buffers from entry ``start`` on.
+
+    Rows beyond the arrays' capacity are skipped (they go with the arrays).
+    Only the used neighbour slots are copied (beyond a landmark's count the
+    slots hold -1 and 0). Returns the number of entries after the copy; the
+    caller made the buffers large enough.
+    """
     capacity = landmark_info.shape[0]
-    count = 0
+    n = start
     for i in rows:
-        if i < capacity:
-            count += 1
-    kept = np.empty(count, dtype=np.int64)
-    count = 0
-    for i in rows:
-        if i < capacity:
-            kept[count] = i
-            count += 1
-    width = 0  # neighbour slots beyond a landmark's count are -1 and 0: save the used ones only
-    for p in range(count):
-        width = max(width, neighbour_count[kept[p]])
-    links = np.empty((count, 3, 2))
-    info = np.empty((count, 2, 2))
-    index = np.empty((count, width), dtype=np.int64)
-    neighbours = np.empty((count, width, 2, 2))
-    counts = np.empty(count, dtype=np.int64)
-    values = np.empty((count, 4))
-    flags = np.empty(count, dtype=np.bool_)
-    observed = np.empty(count, dtype=np.int64)
-    for p in range(count):
-        i = kept[p]
-        links[p] = robot_links[i]
-        info[p] = landmark_info[i]
-        index[p] = neighbour_index[i, :width]
-        neighbours[p] = neighbour_info[i, :width]
-        counts[p] = neighbour_count[i]
-        values[p, 0] = information_vector[3 + 2 * i]
-        values[p, 1] = information_vector[4 + 2 * i]
-        values[p, 2] = mean[3 + 2 * i]
-        values[p, 3] = mean[4 + 2 * i]
-        flags[p] = is_active[i]
-        observed[p] = last_observed[i]
-    return kept, links, info, index, neighbours, counts, values, flags, observed
+        if i >= capacity:
+            continue
+        saved_rows[n] = i
+        saved_links[n] = robot_links[i]
+        saved_info[n] = landmark_info[i]
+        # a row written before it was saved (only ever saved earlier too, whose copy wins) may count more
+        # slots than these arrays hold: never read past them
+        count = min(neighbour_count[i], neighbour_index.shape[1])
+        saved_counts[n] = count
+        for slot in range(count):
+            saved_index[n, slot] = neighbour_index[i, slot]
+            saved_neighbours[n, slot] = neighbour_info[i, slot]
+        saved_values[n, 0] = information_vector[3 + 2 * i]
+        saved_values[n, 1] = information_vector[4 + 2 * i]
+        saved_values[n, 2] = mean[3 + 2 * i]
+        saved_values[n, 3] = mean[4 + 2 * i]
+        saved_flags[n] = is_active[i]
+        saved_observed[n] = last_observed[i]
+        n += 1
+    return n
 
 
 @njit(cache=True)
-def restore_rows(saved_rows, links, info, index, neighbours, counts, values, flags, observed,
+def restore_rows(count, saved_rows, saved_links, saved_info, saved_index, saved_neighbours, saved_counts,
+                 saved_values, saved_flags, saved_observed,
                  robot_links, landmark_info, neighbour_index, neighbour_info, neighbour_count,
-                 information_vector, mean, is_active, last_observed):  # fmt: skip
-    """Write the copies of :func:`save_rows` back (into the arrays they were saved from)."""
-    width = index.shape[1]
-    for p in range(saved_rows.shape[0]):
-        i = saved_rows[p]
-        robot_links[i] = links[p]
-        landmark_info[i] = info[p]
-        for slot in range(width, neighbour_count[i]):  # slots a failed step appended
+                 information_vector, mean, is_active, last_observed, block_position):  # fmt: skip
+    """Write the first ``count`` journal entries back; of several entries of a row the first (oldest) wins.
+
+    ``block_position`` (all -1) marks the rows done and is left all -1.
+    """
+    for n in range(count):
+        i = saved_rows[n]
+        if block_position[i] >= 0:
+            continue
+        block_position[i] = 0
+        robot_links[i] = saved_links[n]
+        landmark_info[i] = saved_info[n]
+        old = saved_counts[n]
+        for slot in range(old, neighbour_count[i]):  # slots a failed step appended
             neighbour_index[i, slot] = -1
             neighbour_info[i, slot] = 0.0
-        neighbour_index[i, :width] = index[p]
-        neighbour_info[i, :width] = neighbours[p]
-        neighbour_count[i] = counts[p]
-        information_vector[3 + 2 * i] = values[p, 0]
-        information_vector[4 + 2 * i] = values[p, 1]
-        mean[3 + 2 * i] = values[p, 2]
-        mean[4 + 2 * i] = values[p, 3]
-        is_active[i] = flags[p]
-        last_observed[i] = observed[p]
+        for slot in range(old):
+            neighbour_index[i, slot] = saved_index[n, slot]
+            neighbour_info[i, slot] = saved_neighbours[n, slot]
+        neighbour_count[i] = old
+        information_vector[3 + 2 * i] = saved_values[n, 0]
+        information_vector[4 + 2 * i] = saved_values[n, 1]
+        mean[3 + 2 * i] = saved_values[n, 2]
+        mean[4 + 2 * i] = saved_values[n, 3]
+        is_active[i] = saved_flags[n]
+        last_observed[i] = saved_observed[n]
+    for n in range(count):
+        block_position[saved_rows[n]] = -1

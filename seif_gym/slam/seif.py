@@ -47,6 +47,7 @@ __all__ = [
     "recover_mean_wavefront",
     "recover_mean_exact",
     "RecoveryQueue",
+    "JournalBuffer",
     "UpdateJournal",
     "blanket_covariances",
 ]
@@ -353,6 +354,40 @@ def recover_mean_wavefront(
     relax_robot()
 
 
+class JournalBuffer:
+    """Reusable buffers for the landmark rows an :class:`UpdateJournal` saves (one per filter).
+
+    Grown (doubling) when a step saves more rows, or wider rows, than they
+    hold; their size follows the active set and the scan, never the map.
+    """
+
+    def __init__(self, rows: int = 32, width: int = 16) -> None:
+        self.rows: IndexArray = np.zeros(rows, dtype=np.int64)
+        self.links: FloatArray = np.zeros((rows, 3, 2))
+        self.info: FloatArray = np.zeros((rows, 2, 2))
+        self.index: IndexArray = np.zeros((rows, width), dtype=np.int64)
+        self.neighbours: FloatArray = np.zeros((rows, width, 2, 2))
+        self.counts: IndexArray = np.zeros(rows, dtype=np.int64)
+        self.values: FloatArray = np.zeros((rows, 4))
+        self.flags: NDArray[np.bool_] = np.zeros(rows, dtype=bool)
+        self.observed: IndexArray = np.zeros(rows, dtype=np.int64)
+
+    def reserve(self, rows: int, width: int, keep: int) -> None:
+        """Room for ``rows`` entries of ``width`` neighbour slots, keeping the first ``keep`` entries."""
+        if rows <= len(self.rows) and width <= self.index.shape[1]:
+            return
+        grown = JournalBuffer(max(rows, 2 * len(self.rows)), max(width, self.index.shape[1]))
+        for name in ("rows", "links", "info", "counts", "values", "flags", "observed"):
+            getattr(grown, name)[:keep] = getattr(self, name)[:keep]
+        grown.index[:keep, : self.index.shape[1]] = self.index[:keep]
+        grown.neighbours[:keep, : self.index.shape[1]] = self.neighbours[:keep]
+        vars(self).update(vars(grown))
+
+    def arrays(self) -> tuple[NDArray, ...]:
+        return (self.rows, self.links, self.info, self.index, self.neighbours, self.counts, self.values,
+                self.flags, self.observed)  # fmt: skip
+
+
 class UpdateJournal:
     """What a filter step is about to change, saved so that a failed step can be undone.
 
@@ -361,9 +396,9 @@ class UpdateJournal:
     robot's block and references to every array (a stage that grows the
     store replaces them). Recovery adds what it touches beyond them: the
     wavefront's undo log, or copies for the exact and the plain paths.
-    :meth:`restore` puts it all back, newest first, so that the filter is
-    bit-identical to before the step. It costs time in the number of landmarks
-    the step touches, never in the size of the map.
+    :meth:`restore` puts it all back, so that the filter is bit-identical to
+    before the step. It costs time in the number of landmarks the step
+    touches, never in the size of the map.
     """
 
     _STORE_ARRAYS = (
@@ -375,14 +410,17 @@ class UpdateJournal:
     def __init__(self, filt: SEIF, landmarks: IndexArray | None = None) -> None:
         store, queue = filt._store, filt._queue
         self._filter = filt
-        self._store_arrays = tuple(getattr(store, name) for name in self._STORE_ARRAYS)
-        self._filter_arrays = tuple(getattr(filt, name) for name in self._FILTER_ARRAYS)
-        self._scalars = (store.num_landmarks, filt._update_count, filt._round_robin,
-                         tuple(getattr(filt, name) for name in filt._COUNTERS))  # fmt: skip
+        # in the order of _STORE_ARRAYS and _FILTER_ARRAYS (spelled out: this runs twice per filter step)
+        self._store_arrays = (
+            store.robot_links, store.landmark_info, store.neighbour_index, store.neighbour_info,
+            store.neighbour_count, store.information_vector, store.mean, store.block_position,
+        )  # fmt: skip
+        self._filter_arrays = (filt._active, filt._is_active, filt._last_observed)
+        counters = tuple(getattr(filt, name) for name in filt._COUNTERS) if filt._COUNTERS else ()
+        self._scalars = (store.num_landmarks, filt._update_count, filt._round_robin, counters)
         self._robot = (store.robot_info.copy(), store.information_vector[:3].copy(), store.mean[:3].copy())
         self._queue = (queue.items, queue.queued, queue.state, queue.state.copy())
-        self._saved: list[tuple] = []
-        self._saved_rows: set[int] = set()
+        self._saved = 0  # entries of filt._journal_buffer
         self._full_mean: FloatArray | None = None
         self._queue_copy: tuple[IndexArray, NDArray[np.bool_]] | None = None
         self._wavefront_logs: list[tuple] = []
@@ -390,21 +428,17 @@ class UpdateJournal:
             self.save_landmarks(landmarks)
 
     def save_landmarks(self, landmarks: IndexArray) -> None:
-        """Save the rows of ``landmarks`` (state orders) that are not saved yet.
+        """Save the rows of ``landmarks`` (state orders) before a stage writes them.
 
-        Call it before a stage writes them: a row is saved once, untouched.
-        Rows beyond the capacity at the start go with the old arrays.
+        A row saved twice keeps its first (untouched) copy. Rows beyond the
+        capacity at the start go with the old arrays.
         """
         rows = np.asarray(landmarks, dtype=np.int64)
-        if self._saved_rows:
-            rows = np.array([i for i in rows.tolist() if i not in self._saved_rows], dtype=np.int64)
-        if len(rows) == 0:
-            return
         links, info, index, neighbours, counts, vector, mean, _ = self._store_arrays
-        saved = _kernels.save_rows(rows, links, info, index, neighbours, counts, vector, mean,
-                                   self._filter_arrays[1], self._filter_arrays[2])  # fmt: skip
-        self._saved.append(saved)
-        self._saved_rows.update(saved[0].tolist())
+        buffer = self._filter._journal_buffer
+        buffer.reserve(self._saved + len(rows), index.shape[1], self._saved)
+        self._saved = _kernels.save_rows(rows, self._saved, links, info, index, neighbours, counts, vector, mean,
+                                         self._filter_arrays[1], self._filter_arrays[2], *buffer.arrays())  # fmt: skip
 
     def save_mean(self) -> None:
         """Save the whole mean (for exact recovery, which costs O(n^1.5) anyway)."""
@@ -435,10 +469,9 @@ class UpdateJournal:
         store.robot_info[:], store.information_vector[:3], store.mean[:3] = self._robot
         if self._full_mean is not None:
             store.mean[:] = self._full_mean
-        links, info, index, neighbours, counts, vector, mean, _ = self._store_arrays
-        for saved in self._saved:
-            _kernels.restore_rows(*saved, links, info, index, neighbours, counts, vector, mean,
-                                  self._filter_arrays[1], self._filter_arrays[2])  # fmt: skip
+        links, info, index, neighbours, counts, vector, mean, block_position = self._store_arrays
+        _kernels.restore_rows(self._saved, *filt._journal_buffer.arrays(), links, info, index, neighbours, counts,
+                              vector, mean, self._filter_arrays[1], self._filter_arrays[2], block_position)  # fmt: skip
         queue = filt._queue
         queue.items, queue.queued, queue.state = self._queue[:3]
         queue.state[:] = self._queue[3]
@@ -601,10 +634,13 @@ class SEIF(SlamFilter):
         self._round_robin = 0
         self._queue = RecoveryQueue(self._store.capacity)
         self._journal: UpdateJournal | None = None
+        self._journal_buffer = JournalBuffer()
 
     # -- step 1 ------------------------------------------------------------------
     def _predict(self, control: FloatArray, dt: float) -> None:
-        journal = UpdateJournal(self, self._active)  # the motion update writes the robot and its active rows
+        # the compiled motion update writes the robot's and its active landmarks' rows only after its last
+        # computation, so the robot's block and the arrays (which may grow) suffice; the plain path saves the rows
+        journal = UpdateJournal(self, None if self._compiled else self._active)
         try:
             self._motion_update(control, dt)
         except BaseException:
@@ -632,7 +668,11 @@ class SEIF(SlamFilter):
     # -- steps 2-4 ---------------------------------------------------------------
     def _update(self, ranges: FloatArray, bearings: FloatArray, indices: IndexArray, is_new: NDArray[np.bool_]) -> None:
         # every stage writes into the rows of the robot, the active and the observed landmarks, or logs
-        journal = self._journal = UpdateJournal(self, np.concatenate([self._active, indices]))
+        rows = [self._active, indices]
+        if self.mean_recovery == "amortized":  # the round robin's next batches (an ESEIF update recovers twice)
+            rows.append((self._round_robin + np.arange(min(2 * self.recovery_landmarks, self.num_landmarks)))
+                        % max(self.num_landmarks, 1))  # fmt: skip
+        journal = self._journal = UpdateJournal(self, np.concatenate(rows))
         try:
             self._measurement_step(ranges, bearings, indices, is_new)
         except BaseException:
@@ -724,9 +764,7 @@ class SEIF(SlamFilter):
                     self.recovery_budget, self.recovery_relaxation, self.recovery_tolerance,
                 )  # fmt: skip
         else:
-            landmarks = np.concatenate([self._passive_batch(), self._active])
-            if journal is not None:
-                journal.save_landmarks(landmarks)
+            landmarks = np.concatenate([self._passive_batch(), self._active])  # saved when the journal opened
             if self._compiled:
                 _kernels.recover_mean(
                     store.robot_info, store.robot_links, store.landmark_info,
@@ -896,17 +934,16 @@ class SEIF(SlamFilter):
         against the inverse of the dense matrix.
         """
         store = self._store
-        unit = np.zeros((store.state_dim, len(state_indices)))
-        unit[state_indices, np.arange(len(state_indices))] = 1.0
         if self.num_landmarks <= self.DENSE_MARGINALS_UP_TO:
-            omega, _, _ = _kernels.gather(
+            cov = _kernels.exact_marginal(
                 store.robot_info, store.robot_links, store.landmark_info,
                 store.neighbour_index, store.neighbour_info, store.neighbour_count,
-                store.information_vector, store.mean, store.block_position,
-                np.arange(self.num_landmarks, dtype=np.int64),
+                store.information_vector, store.mean, store.block_position, self.num_landmarks,
+                np.asarray(state_indices, dtype=np.int64),
             )  # fmt: skip
-            cov = scipy.linalg.cho_solve(scipy.linalg.cho_factor(omega, lower=True), unit)[state_indices]
         else:
+            unit = np.zeros((store.state_dim, len(state_indices)))
+            unit[state_indices, np.arange(len(state_indices))] = 1.0
             solver = scipy.sparse.linalg.splu(store.to_sparse().tocsc(), permc_spec="MMD_AT_PLUS_A")
             cov = solver.solve(unit)[state_indices]
         return 0.5 * (cov + cov.T)

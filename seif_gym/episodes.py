@@ -505,6 +505,13 @@ class ReplayResult:
                 object.__setattr__(self, item.name, array)
 
 
+#: What the :class:`~seif_gym.slam.association.Associator` uses of a filter (beyond ``predict``), checked before an ML replay.
+ASSOCIATION_NEEDS: tuple[str, ...] = (
+    "pose", "landmarks", "landmark_ids", "num_landmarks", "sensor",
+    "local_marginals", "local_joint_covariance", "update_trusted",
+)  # fmt: skip
+
+
 #: The env's filter options an episode's config holds, and what an episode recorded before the option existed ran.
 _ENV_FILTER_OPTIONS: dict[str, Any] = {"max_active": None, "mean_recovery": "amortized"}
 
@@ -564,18 +571,31 @@ def replay(
         ``callback(t, filter)`` after the measurement of time ``t``
         (``t = 0`` after the first one, ``t = T`` after the last step), e.g.
         to read covariances.
+    association : {"known", "ml"}, optional
+        ``"known"``: the filter gets the recorded true ids (an explicit
+        choice, e.g. to compare an ml episode with known correspondences);
+        ``"ml"``: the ids come from maximum-likelihood association of the
+        measurements (the episode's ``ml_association`` preset); ``None``
+        (default): as the episode was recorded (``config["data_association"]``).
+        Association needs a filter with the methods the
+        :class:`~seif_gym.slam.association.Associator` calls
+        (:data:`ASSOCIATION_NEEDS`).
     **options
         Filter options. If the filter takes ``max_active`` and ``mean_recovery``
         (the SEIF, the ESEIF) and none is given, the episode's config's are used, as the
         env does.
-    association : {"known", "ml"}, optional
-        ``"known"``: the filter gets the recorded true ids; ``"ml"``: the
-        ids come from maximum-likelihood association of the measurements;
-        ``None`` (default): as the episode was recorded (``config["data_association"]``).
 
     Returns
     -------
     ReplayResult
+
+    Raises
+    ------
+    ValueError
+        If ``association`` is not ``"known"``, ``"ml"`` or ``None``, or
+        association is to be run (asked for, or recorded) with a filter that
+        lacks what the associator needs: the true ids are never used in its
+        place.
     """
     if not isinstance(episode, Episode):
         raise TypeError(f"episode must be an Episode, got {type(episode).__name__}")
@@ -592,6 +612,7 @@ def replay(
     if callback is not None and not callable(callback):
         raise TypeError(f"callback must be callable, got {type(callback).__name__}")
     config = episode.config
+    explicit = association is not None
     if association is None:
         association = str(config.get("data_association", "known"))
     if association not in ("known", "ml"):
@@ -599,6 +620,14 @@ def replay(
     options = _default_options(factory, config, options)
     motion, sensor = episode_models(config)
     filt = factory(motion, sensor, episode.true_poses[0].copy(), **options)
+    if association == "ml":
+        missing = [name for name in ASSOCIATION_NEEDS if not hasattr(filt, name)]
+        if missing:
+            asked = "association='ml'" if explicit else "association=None (the episode was recorded with data_association='ml')"
+            raise ValueError(
+                f"{asked} needs a filter with {', '.join(ASSOCIATION_NEEDS)}; {type(filt).__name__} lacks "
+                f"{', '.join(missing)}. Pass association='known' to feed it the true ids instead"
+            )
 
     steps, dt = episode.steps, episode.dt
     d_cap = config["d_cap"]

@@ -233,17 +233,26 @@ def test_replay_of_a_loaded_episode_is_bit_exact(tmp_path):
     np.testing.assert_array_equal(result.map_errors, episode.map_errors)
 
 
+class IdsSeen(SEIF):
+    """A SEIF that logs the ids of every measurement update it is given."""
+
+    fed: list
+
+    def update_trusted(self, ranges, bearings, ids):
+        self.fed.append(np.array(ids))
+        super().update_trusted(ranges, bearings, ids)
+
+
+def ids_seen_factory(fed: list) -> type:
+    """A subclass of :class:`IdsSeen` appending to ``fed``."""
+    return type("Seen", (IdsSeen,), {"fed": fed})
+
+
 def test_ml_episode_replays_with_association_not_the_true_ids():
     """An ml episode re-runs the association; the true ids only when asked for, and then differently."""
     episode = record("SeifExploreLoop-v1", (("data_association", "ml"),), seed=3, steps=150).episode
     fed: list = []
-
-    class Watched(SEIF):
-        def update_trusted(self, ranges, bearings, ids):
-            fed.append(np.array(ids))
-            super().update_trusted(ranges, bearings, ids)
-
-    result = replay(episode, filter_factory=Watched)
+    result = replay(episode, filter_factory=ids_seen_factory(fed))
     np.testing.assert_array_equal(result.poses, episode.estimated_poses)
     # the filter was given the associator's ids (fresh ones from 0), not the simulator's ids
     true = [np.asarray(episode.measurements(t)[2]) for t in range(episode.steps + 1)]
@@ -254,6 +263,64 @@ def test_ml_episode_replays_with_association_not_the_true_ids():
     assert not np.array_equal(known.landmark_ids, result.landmark_ids) or not np.array_equal(known.poses, result.poses)
     with pytest.raises(ValueError, match="association"):
         replay(episode, association="oracle")
+
+
+def test_short_ml_episode_replays_its_association_bit_for_bit(tmp_path):
+    """60 steps of an ml episode whose associator errs: the replay re-runs it, also from a saved file."""
+    rec = record("SeifExplore-v1", (("data_association", "ml"),), seed=7, steps=60)
+    episode = rec.episode
+    recorded_errors = sum(info["association_errors"] for info in rec.infos)
+    assert recorded_errors > 0  # the associator decided differently from the true ids at least once
+    loaded = Episode.load(episode.save(tmp_path / "ml.npz"))
+    for source in (episode, loaded):
+        result = replay(source, source.config["filter"])
+        np.testing.assert_array_equal(result.poses, episode.estimated_poses)
+        np.testing.assert_array_equal(result.map_errors, episode.map_errors)
+        np.testing.assert_array_equal(result.landmark_ids, rec.final_landmark_ids)
+        assert result.association_errors == recorded_errors
+    # association="known" is an explicit choice: the filter then gets exactly the recorded true ids
+    fed: list = []
+    known = replay(episode, filter_factory=ids_seen_factory(fed), association="known")
+    true = [episode.measurements(t)[2] for t in range(episode.steps + 1)]
+    assert len(fed) == len(true) and all(np.array_equal(f, t) for f, t in zip(fed, true))
+    assert known.association_errors == -1
+    assert not np.array_equal(known.map_errors, episode.map_errors)
+
+
+def test_ml_replay_never_falls_back_to_the_true_ids():
+    """A filter the associator cannot use raises instead of silently getting the true ids."""
+    ml_episode = record("SeifExplore-v1", (("data_association", "ml"),), seed=7, steps=60).episode
+    known_episode = record("SeifExplore-v0").episode
+
+    class PoseAndMapOnly:
+        """The minimal filter of ``replay``'s ``filter_factory``: no association support."""
+
+        def __init__(self, motion, sensor, initial_pose):
+            self._inner = EKF(motion, sensor, initial_pose)
+
+        def predict(self, control, dt):
+            self._inner.predict(control, dt)
+
+        def update(self, ranges, bearings, ids):
+            self._inner.update(ranges, bearings, ids)
+
+        pose = property(lambda self: self._inner.pose)
+        landmark_ids = property(lambda self: self._inner.landmark_ids)
+        landmarks = property(lambda self: self._inner.landmarks)
+
+    with pytest.raises(ValueError, match=r"association=None .*data_association='ml'.*lacks"):
+        replay(ml_episode, filter_factory=PoseAndMapOnly)
+    with pytest.raises(ValueError, match=r"association='ml' needs"):
+        replay(known_episode, filter_factory=PoseAndMapOnly, association="ml")
+    # asked for explicitly, the true ids are fed: the same run as the EKF's with known ids
+    minimal = replay(ml_episode, filter_factory=PoseAndMapOnly, association="known")
+    np.testing.assert_array_equal(minimal.poses, replay(ml_episode, "ekf", association="known").poses)
+    # and a known-ids episode can be replayed with association
+    associated = replay(known_episode, association="ml")
+    assert associated.association_errors >= 0 and np.all(np.isfinite(associated.poses))
+    for bad in ("oracle", "", 1):
+        with pytest.raises(ValueError, match="association must be"):
+            replay(known_episode, association=bad)
 
 
 def logging_filter(cls, log: list):

@@ -182,3 +182,232 @@ def test_empty_inputs_and_validation():
         Associator(gate=0.99, new_landmark=0.9)
     with pytest.raises(ValueError):
         Associator(candidate_radius=2.0, min_separation=3.0)
+
+
+# -- joint compatibility branch and bound ---------------------------------------------------------------
+def brute_force_jcbb(nu, cov, pair_meas, pair_landmark, gate):
+    """Every joint hypothesis enumerated: the most pairings passing the joint gate, then the smallest d2 + ln det S."""
+    import itertools
+
+    import scipy.stats
+
+    measurements = sorted(set(pair_meas.tolist()))
+    options = [[None] + np.flatnonzero(pair_meas == i).tolist() for i in measurements]
+    best = (0, 0.0, [])
+    for choice in itertools.product(*options):
+        pairs = [k for k in choice if k is not None]
+        landmarks = [int(pair_landmark[k]) for k in pairs]
+        if len(set(landmarks)) < len(landmarks):
+            continue
+        if pairs:
+            idx = np.array([2 * k + a for k in pairs for a in (0, 1)])
+            S = cov[np.ix_(idx, idx)]
+            v = nu[pairs].reshape(-1)
+            d2 = float(v @ np.linalg.solve(S, v))
+            if d2 > scipy.stats.chi2.ppf(gate, 2 * len(pairs)):
+                continue
+            cost = d2 + float(np.linalg.slogdet(S)[1])
+        else:
+            cost = 0.0
+        if len(pairs) > best[0] or (len(pairs) == best[0] and cost < best[1] - 1e-9):
+            best = (len(pairs), cost, sorted(pairs))
+    return best
+
+
+def random_association_problem(rng: np.random.Generator):
+    """A few measurements, each with 1-3 candidate landmarks, correlated through a shared pose block."""
+    m, n = int(rng.integers(2, 6)), int(rng.integers(2, 6))
+    pair_meas, pair_landmark = [], []
+    for i in range(m):
+        for j in rng.choice(n, size=int(rng.integers(1, min(n, 3) + 1)), replace=False):
+            pair_meas.append(i)
+            pair_landmark.append(int(j))
+    K = len(pair_meas)
+    A = rng.normal(size=(2 * K, 3)) * 0.5
+    cov = A @ A.T + np.kron(np.eye(K), np.diag([0.05, 0.02]))
+    nu = rng.normal(size=(K, 2)) * rng.uniform(0.1, 1.0)
+    return nu, cov, np.array(pair_meas), np.array(pair_landmark)
+
+
+@pytest.mark.parametrize("seed", range(40))
+def test_jcbb_equals_brute_force_enumeration(seed):
+    from seif_gym.slam.association import jcbb
+
+    rng = np.random.default_rng(seed)
+    nu, cov, pair_meas, pair_landmark = random_association_problem(rng)
+    gate = float(rng.choice([0.9, 0.99, 0.999]))
+    count, cost, pairs = brute_force_jcbb(nu, cov, pair_meas, pair_landmark, gate)
+    found = jcbb(nu, cov, pair_meas, pair_landmark, gate=gate, max_nodes=10**6)
+    assert len(found) == count
+    if count:
+        idx = np.array([2 * k + a for k in found for a in (0, 1)])
+        S = cov[np.ix_(idx, idx)]
+        v = nu[found].reshape(-1)
+        assert float(v @ np.linalg.solve(S, v)) + np.linalg.slogdet(S)[1] == pytest.approx(cost, abs=1e-8)
+        assert len(set(pair_meas[found].tolist())) == count and len(set(pair_landmark[found].tolist())) == count
+
+
+@pytest.mark.parametrize("seed", range(60))
+def test_compiled_jcbb_returns_the_reference_hypothesis(seed):
+    """The compiled search and the plain-Python ``_JointSearch``: same hypothesis, budgets and starts included."""
+    from seif_gym.slam.association import jcbb
+
+    rng = np.random.default_rng(1000 + seed)
+    nu, cov, pair_meas, pair_landmark = random_association_problem(rng)
+    gate = float(rng.choice([0.9, 0.99, 0.999]))
+    max_nodes = int(rng.choice([3, 12, 10**6]))
+    first = np.flatnonzero(pair_meas == pair_meas[0])
+    initial = [int(rng.choice(first))] if seed % 2 else None
+    reference = jcbb(nu, cov, pair_meas, pair_landmark, gate, max_nodes, initial=initial, compiled=False)
+    compiled = jcbb(nu, cov, pair_meas, pair_landmark, gate, max_nodes, initial=initial)
+    np.testing.assert_array_equal(compiled, reference)
+
+
+def test_conditional_loglik_is_the_chain_rule():
+    from seif_gym.slam.association import conditional_loglik
+
+    rng = np.random.default_rng(3)
+    nu, cov, _, _ = random_association_problem(rng)
+    pairs = np.array([0, len(nu) - 1]) if len(nu) > 1 else np.array([0])
+    idx = np.array([2 * k + a for k in pairs for a in (0, 1)])
+    S = cov[np.ix_(idx, idx)]
+
+    def logpdf(v, C):
+        return -0.5 * (v @ np.linalg.solve(C, v) + np.linalg.slogdet(2 * np.pi * C)[1])
+
+    joint = logpdf(nu[pairs].reshape(-1), S)
+    rest = logpdf(nu[pairs[1:]].reshape(-1), S[2:, 2:]) if len(pairs) > 1 else 0.0
+    assert conditional_loglik(nu, cov, pairs)[0] == pytest.approx(joint - rest, abs=1e-9)
+
+
+def test_associator_validates_its_new_options():
+    for kwargs in ({"landmark_density": -1.0}, {"detection": 1.0}, {"joint_gate": 0.0}, {"max_nodes": 0},
+                   {"blanket_size": -1}, {"landmark_separation": -0.5}):  # fmt: skip
+        with pytest.raises(ValueError, match=next(iter(kwargs))):
+            Associator(**kwargs)
+
+
+# -- presets, and the seif_gym 0.1 associator they must reproduce -----------------------------------------------------
+def legacy_ids(associator: Associator, filt, ranges, bearings) -> np.ndarray:
+    """seif_gym 0.1's decision, written out: chi-square gate, best assignment of ``d2 + ln det S``, new landmarks."""
+    import scipy.optimize
+
+    m = len(ranges)
+    ids = np.full(m, -1, dtype=np.int64)
+    gate, new_threshold = associator.thresholds()
+    pair_meas, pair_landmark, d2, logdet = associator.distances(filt, ranges, bearings)
+    gated = np.flatnonzero(d2 <= gate)
+    if len(gated):
+        rows, row_of = np.unique(pair_meas[gated], return_inverse=True)
+        cols, col_of = np.unique(pair_landmark[gated], return_inverse=True)
+        cost = np.full((len(rows), len(cols)), 1e9)
+        cost[row_of, col_of] = d2[gated] + logdet[gated]
+        r_idx, c_idx = scipy.optimize.linear_sum_assignment(cost)
+        ok = cost[r_idx, c_idx] < 1e9
+        ids[rows[r_idx[ok]]] = filt.landmark_ids[cols[c_idx[ok]]]
+    best = np.full(m, np.inf)
+    np.minimum.at(best, pair_meas, d2)
+    new = (ids < 0) & (best > new_threshold)
+    ids[new] = associator.next_id + np.arange(int(new.sum()))
+    return ids
+
+
+@pytest.mark.parametrize("filter_class", [EKF, SEIF])
+def test_individual_preset_reproduces_the_original_associator(filter_class):
+    from seif_gym.slam.association import make_associator
+
+    motion, sensor, run = simulated_run(7)
+    filt = filter_class(motion, sensor, run.initial_pose)
+    associator = make_associator("individual")
+    for t in range(run.steps):
+        filt.predict(run.controls[t], run.dt)
+        expected = legacy_ids(associator, filt, run.ranges[t], run.bearings[t])
+        ids = associator.associate(filt, run.ranges[t], run.bearings[t])
+        np.testing.assert_array_equal(ids, expected, err_msg=f"step {t}")
+        keep = ids >= 0
+        filt.update(run.ranges[t][keep], run.bearings[t][keep], ids[keep])
+    assert associator.stats.deferred == 0
+
+
+def test_make_associator_presets_and_overrides():
+    from seif_gym.slam.association import ASSOCIATOR_PRESETS, make_associator
+
+    assert set(ASSOCIATOR_PRESETS) == {"individual", "joint"}
+    individual = make_associator("individual")
+    assert not individual.joint and individual.landmark_density == 0.0 and individual.blanket_size == 0
+    assert individual.detection == 0.0
+    joint = make_associator()
+    assert joint.joint and joint.landmark_density == Associator().landmark_density
+    assert make_associator("joint", gate=0.99).gate == 0.99
+    with pytest.raises(ValueError, match="preset"):
+        make_associator("nearest")
+    with pytest.raises(ValueError, match="preset"):
+        make_associator(3)  # type: ignore[arg-type]
+    with pytest.raises(ValueError, match="closure_window"):
+        make_associator(closure_window=-1)
+
+
+# -- loop closure: the scenarios of seif_gym.slam.scenarios (full figures: benchmarks/association.py) -----------
+def loop_audit(scenario: str, seed: int, filter_name: str, preset: str) -> AssociationAudit:
+    """One loop-closing run of ``FIDELITY_SCENARIOS`` with hidden ids; its audit (and the associator as ``.associator``)."""
+    from seif_gym.slam.association import make_associator
+    from seif_gym.slam.scenarios import FIDELITY_SCENARIOS, make_loop_run
+
+    motion, sensor, run = make_loop_run(FIDELITY_SCENARIOS[scenario], seed)
+    filt = EKF(motion, sensor, run.initial_pose) if filter_name == "EKF" else SEIF(
+        motion, sensor, run.initial_pose, max_active=8)  # fmt: skip
+    associator, audit = make_associator(preset), AssociationAudit()
+    for t in range(run.steps):
+        filt.predict(run.controls[t], run.dt)
+        audit.record(associator, associator.update(filt, run.ranges[t], run.bearings[t]), run.ids[t])
+    audit.associator = associator
+    return audit
+
+
+@pytest.mark.parametrize("filter_name", ["EKF", "SEIF"])
+def test_loop_closing_runs_beat_the_individual_associator(filter_name):
+    """All eight ``FIDELITY_SCENARIOS``, seed 0 (no selection), default ("joint") against "individual".
+
+    Measured (``python benchmarks/association.py --seeds 1``, and with the individual preset's options):
+
+    * EKF: joint 99.60% correct, duplicates 0.24% of the true landmarks; individual 99.48%, 1.70%.
+      The issue's targets (>= 99.5%, <= 2%) are met and both figures beat the individual associator:
+      that is what is asserted.
+    * SEIF(max_active=8): joint 98.78%, 6.20%; individual 99.32%, 4.86%. The targets are NOT met and
+      the joint preset does NOT beat the individual one on these runs (``circle-large`` and
+      ``rectangle-narrow``: loop closures the SEIF's overconfident covariance gets wrong, which the
+      deferral of lone closures makes worse here; over seeds 0-2 the duplicates are lower, 4.20% vs
+      4.82%, the correct fraction still lower, 98.98% vs 99.27%). Asserted: regression bounds only,
+      98.5% correct and 7% duplicates for the joint preset.
+    """
+    from seif_gym.slam.scenarios import FIDELITY_SCENARIOS
+
+    totals = {}
+    for preset in ("joint", "individual"):
+        audits = [loop_audit(name, 0, filter_name, preset) for name in FIDELITY_SCENARIOS]
+        totals[preset] = (sum(a.agree for a in audits) / sum(a.total for a in audits),
+                          sum(a.duplicates for a in audits) / sum(a.true_landmarks for a in audits))  # fmt: skip
+    (correct, duplicates), (legacy_correct, legacy_duplicates) = totals["joint"], totals["individual"]
+    message = f"{filter_name}: joint {correct:.4f} correct, {duplicates:.4f} dup; individual {legacy_correct:.4f}, " \
+              f"{legacy_duplicates:.4f}"  # fmt: skip
+    if filter_name == "EKF":
+        assert correct >= 0.995 and duplicates <= 0.02, message
+        assert correct > legacy_correct and duplicates < legacy_duplicates, message
+    else:
+        assert correct >= 0.985 and duplicates <= 0.07, message
+
+
+def test_lone_loop_closures_are_deferred_until_backed():
+    """A closing pair alone is deferred (discarded); with ``closure_pairings=1`` nothing ever is."""
+    from seif_gym.slam.association import make_associator
+
+    audit = loop_audit("rectangle-narrow", 0, "EKF", "joint")
+    assert audit.associator.stats.deferred > 0
+    assert audit.associator.stats.deferred <= audit.discarded
+    motion, sensor, run = simulated_run(1)
+    filt = EKF(motion, sensor, run.initial_pose)
+    associator = make_associator(closure_pairings=1)
+    for t in range(run.steps):
+        filt.predict(run.controls[t], run.dt)
+        associator.update(filt, run.ranges[t], run.bearings[t])
+    assert associator.stats.deferred == 0

@@ -1,0 +1,149 @@
+"""Data association with unknown correspondences on the loop-closing runs.
+
+Usage::
+
+    python benchmarks/association.py --seeds 3 --filters ekf,seif      # all scenarios x seeds 0..2
+
+Runs :data:`seif_gym.slam.scenarios.FIDELITY_SCENARIOS` (seed ``s`` of a
+scenario is ``make_loop_run(scenario, s)``) with the correspondences hidden:
+each scan goes through a default :class:`~seif_gym.slam.association.Associator`
+(``Associator().update(filt, ranges, bearings)``), and
+:class:`~seif_gym.slam.association.AssociationAudit` scores every decision
+against the true ids. Filters: ``EKF(motion, sensor, pose)``,
+``SEIF(motion, sensor, pose, max_active=8)`` and ``ESEIF(..., max_active=8)``,
+all with their default options.
+
+Columns (per scenario and filter, over the seeds):
+
+* **correct %**: measurements given the filter landmark created for their
+  true landmark, or starting a new landmark when their true landmark had none
+  (a discarded measurement is not correct);
+* **dup %**: landmarks created for a true landmark that already had one, over
+  the true landmarks measured;
+* **disc %**: measurements discarded (id -1);
+* **pose err m**: position error at the end of the run (after the loop closed), mean;
+* **ms/scan**: mean wall time of ``Associator.associate`` per scan (the
+  filter's own update excluded), and its maximum.
+"""
+
+from __future__ import annotations
+
+import os
+
+for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS", "NUMBA_NUM_THREADS"):
+    os.environ[_var] = "1"  # before numpy is imported: stable timings, no thread contention
+
+import argparse  # noqa: E402
+import sys  # noqa: E402
+import time  # noqa: E402
+from concurrent.futures import ProcessPoolExecutor  # noqa: E402
+
+import numpy as np  # noqa: E402
+
+from seif_gym.slam import EKF, ESEIF, SEIF  # noqa: E402
+from seif_gym.slam.association import AssociationAudit, Associator  # noqa: E402
+from seif_gym.slam.scenarios import FIDELITY_SCENARIOS, make_loop_run  # noqa: E402
+
+#: filter name -> (class, options)
+FILTERS = {"ekf": (EKF, {}), "seif": (SEIF, {"max_active": 8}), "eseif": (ESEIF, {"max_active": 8})}
+
+
+def parse_options(text: str) -> dict[str, object]:
+    """``"a=1,b=true"`` -> ``{"a": 1, "b": True}`` (Associator keyword arguments)."""
+    options: dict[str, object] = {}
+    for item in filter(None, (part.strip() for part in text.split(","))):
+        key, _, value = item.partition("=")
+        lowered = value.strip().lower()
+        if lowered in ("true", "false"):
+            options[key.strip()] = lowered == "true"
+        else:
+            number = float(value)
+            options[key.strip()] = int(number) if number.is_integer() and "." not in value else number
+    return options
+
+
+def run_one(scenario_name: str, seed: int, filter_name: str, options: dict | None = None) -> dict[str, float]:
+    """One run with unknown correspondences; the audit's counts and timings."""
+    motion, sensor, run = make_loop_run(FIDELITY_SCENARIOS[scenario_name], seed)
+    cls, filter_options = FILTERS[filter_name]
+    filt = cls(motion, sensor, run.initial_pose, **filter_options)
+    associator = Associator(**(options or {}))
+    audit = AssociationAudit()
+    times = []
+    for t in range(run.steps):
+        filt.predict(run.controls[t], run.dt)
+        ranges, bearings = run.ranges[t], run.bearings[t]
+        start = time.perf_counter()
+        ids = associator.associate(filt, ranges, bearings)
+        times.append(time.perf_counter() - start)
+        keep = ids >= 0
+        filt.update(ranges[keep], bearings[keep], ids[keep])
+        audit.record(associator, ids, run.ids[t])
+    error = float(np.hypot(*(filt.pose[:2] - run.true_poses[-1][:2])))
+    return {
+        "agree": audit.agree, "total": audit.total, "discarded": audit.discarded,
+        "duplicates": audit.duplicates, "true_landmarks": audit.true_landmarks,
+        "pose_error": error, "seconds": float(np.sum(times[1:])), "scans": len(times) - 1,
+        "max_seconds": float(np.max(times[1:])),
+    }  # fmt: skip
+
+
+def _run(args: tuple) -> tuple[tuple[str, int, str], dict[str, float]]:
+    return args[:3], run_one(*args)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--seeds", type=int, default=3, help="seeds 0..N-1 per scenario (default 3)")
+    parser.add_argument("--filters", default="ekf,seif", help="comma-separated, of " + ", ".join(FILTERS))
+    parser.add_argument("--scenarios", default=",".join(FIDELITY_SCENARIOS), help="comma-separated scenario names")
+    parser.add_argument("--options", default="", help="Associator keyword arguments, e.g. landmark_density=0.5")
+    parser.add_argument("--jobs", type=int, default=os.cpu_count() or 1, help="worker processes")
+    args = parser.parse_args(argv)
+    filters = [f.strip().lower() for f in args.filters.split(",") if f.strip()]
+    scenarios = [s.strip() for s in args.scenarios.split(",") if s.strip()]
+    for name in filters:
+        if name not in FILTERS:
+            parser.error(f"--filters: unknown filter {name!r} (choose from {', '.join(FILTERS)})")
+    for name in scenarios:
+        if name not in FIDELITY_SCENARIOS:
+            parser.error(f"--scenarios: unknown scenario {name!r}")
+    if args.seeds < 1:
+        parser.error("--seeds must be at least 1")
+    options = parse_options(args.options)
+    Associator(**options)  # bad options fail here, before the workers start
+    jobs = [(s, seed, f, options) for s in scenarios for f in filters for seed in range(args.seeds)]
+    started = time.perf_counter()
+    if args.jobs > 1:
+        with ProcessPoolExecutor(args.jobs) as pool:
+            results = dict(pool.map(_run, jobs))
+    else:
+        results = dict(map(_run, jobs))
+    print(f"# {' '.join([sys.executable.split('/')[-1], *sys.argv])}")
+    print(f"# seeds 0..{args.seeds - 1}; {time.perf_counter() - started:.0f} s")
+    header = f"{'scenario':18s} {'filter':6s} {'correct %':>9s} {'dup %':>6s} {'disc %':>6s} {'pose err m':>10s} " \
+             f"{'ms/scan':>7s} {'max ms':>7s}"  # fmt: skip
+    print(header)
+    print("-" * len(header))
+    totals: dict[str, dict[str, float]] = {f: {} for f in filters}
+
+    def line(label: str, name: str, rows: list[dict[str, float]]) -> None:
+        s = {k: sum(r[k] for r in rows) for k in rows[0]}
+        print(
+            f"{label:18s} {name:6s} {100 * s['agree'] / s['total']:9.2f} "
+            f"{100 * s['duplicates'] / s['true_landmarks']:6.2f} {100 * s['discarded'] / s['total']:6.2f} "
+            f"{s['pose_error'] / len(rows):10.2f} {1e3 * s['seconds'] / s['scans']:7.2f} "
+            f"{1e3 * max(r['max_seconds'] for r in rows):7.1f}"
+        )
+
+    for scenario in scenarios:
+        for name in filters:
+            line(scenario, name, [results[(scenario, seed, name)] for seed in range(args.seeds)])
+    print("-" * len(header))
+    for name in filters:
+        line("all", name, [results[(s, seed, name)] for s in scenarios for seed in range(args.seeds)])
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -545,14 +545,22 @@ def _relax_logged(robot_links, landmark_info, neighbour_index, neighbour_info, n
     moved = _relax_landmark(robot_links, landmark_info, neighbour_index, neighbour_info, neighbour_count,
                             information_vector, mean, i, relaxation)  # fmt: skip
     if moved > tol2:
-        capacity = queue.shape[0]
-        for slot in range(neighbour_count[i]):
-            j = neighbour_index[i, slot]
-            if not queued[j] and queue_state[1] < capacity:
-                queue[(queue_state[0] + queue_state[1]) % capacity] = j
-                queue_state[1] += 1
-                queued[j] = True
-                _log(undo_kind, undo_index, undo_value, undo_count, UNDO_PUSH, j, 0.0, 0.0)
+        _push_neighbours(neighbour_index, neighbour_count, i, queue, queued, queue_state,
+                         undo_kind, undo_index, undo_value, undo_count)  # fmt: skip
+
+
+@njit(cache=True)
+def _push_neighbours(neighbour_index, neighbour_count, i, queue, queued, queue_state,
+                     undo_kind, undo_index, undo_value, undo_count):  # fmt: skip
+    """Put the neighbours of landmark ``i`` that are not queued yet at the end of the queue (logged)."""
+    capacity = queue.shape[0]
+    for slot in range(neighbour_count[i]):
+        j = neighbour_index[i, slot]
+        if not queued[j] and queue_state[1] < capacity:
+            queue[(queue_state[0] + queue_state[1]) % capacity] = j
+            queue_state[1] += 1
+            queued[j] = True
+            _log(undo_kind, undo_index, undo_value, undo_count, UNDO_PUSH, j, 0.0, 0.0)
 
 
 @njit(cache=True)
@@ -612,13 +620,8 @@ def recover_mean_wavefront(robot_info, robot_links, landmark_info, neighbour_ind
         mean[o] += d0
         mean[o + 1] += d1
         if d0 * d0 + d1 * d1 > tol2:
-            for slot in range(neighbour_count[i]):
-                j = neighbour_index[i, slot]
-                if not queued[j] and queue_state[1] < capacity:
-                    queue[(queue_state[0] + queue_state[1]) % capacity] = j
-                    queue_state[1] += 1
-                    queued[j] = True
-                    _log(undo_kind, undo_index, undo_value, undo_count, UNDO_PUSH, j, 0.0, 0.0)
+            _push_neighbours(neighbour_index, neighbour_count, i, queue, queued, queue_state,
+                             undo_kind, undo_index, undo_value, undo_count)  # fmt: skip
     for _ in range(budget):
         if queue_state[1] == 0:
             break

@@ -19,9 +19,11 @@ Versions
 --------
 * ``-v1`` (seif_gym 0.2): the filter's mean recovery is the wavefront
   recovery (``mean_recovery="wavefront"``, the SEIF's and ESEIF's default),
-  which keeps up with loop closures (``benchmarks/fidelity.py``); with
-  ``data_association="ml"`` the joint-compatibility associator
-  (``ml_association="joint"``).
+  which keeps up with loop closures (``benchmarks/fidelity.py``). With
+  ``data_association="ml"`` it keeps 0.1's individual-compatibility
+  associator (``ml_association="individual"``); the joint-compatibility one
+  (``"joint"``) is opt-in: it closes the EKF's loops but not yet the SEIF's,
+  and in the env it defers (discards) many lone revisits.
 * ``-v0`` (seif_gym 0.1): Thrun's round-robin amortized recovery
   (``mean_recovery="amortized"``) and the individual-compatibility associator
   (``ml_association="individual"``), kept so that results measured on it
@@ -45,7 +47,7 @@ _LAYOUTS: dict[str, tuple[dict, int]] = {
 #: What each version pins beyond the layout (kwargs of ``SeifExploreEnv``).
 VERSIONS: dict[int, dict] = {
     0: {"mean_recovery": "amortized", "ml_association": "individual"},
-    1: {"mean_recovery": "wavefront", "ml_association": "joint"},
+    1: {"mean_recovery": "wavefront", "ml_association": "individual"},
 }
 
 #: The newest version, what ``SeifExploreEnv()`` builds with its defaults.

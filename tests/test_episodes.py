@@ -25,6 +25,7 @@ CASES = [
     ("SeifExploreLoop-v1", (("max_active", 4),)),
     ("SeifExploreLoop-v1", (("filter", "eseif"),)),
     ("SeifExploreLoop-v1", (("data_association", "ml"),)),
+    ("SeifExploreLoop-v1", (("data_association", "ml"), ("ml_association", "joint"))),
     ("SeifExploreLoop-v0", (("data_association", "ml"),)),
     ("SeifExplore-v0", ()),
     ("SeifExplore-v0", (("max_active", 4),)),
@@ -74,7 +75,7 @@ def case_id(case) -> str:
 
 
 # -- recording -------------------------------------------------------------------------
-@pytest.mark.parametrize("case", CASES[5:6] + CASES[9:10], ids=case_id)
+@pytest.mark.parametrize("case", CASES[6:7] + CASES[10:11], ids=case_id)
 def test_episode_matches_the_env_infos_at_every_step(case):
     rec = record(*case)
     episode, infos = rec.episode, rec.infos

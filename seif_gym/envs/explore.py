@@ -89,7 +89,7 @@ class FilterConfig:
     max_active: int | None = 8
     data_association: str = "known"
     mean_recovery: str = "wavefront"
-    ml_association: str = "joint"
+    ml_association: str = "individual"
 
     def __post_init__(self) -> None:
         if self.filter not in FILTERS:
@@ -315,7 +315,7 @@ class SeifExploreEnv(gym.Env):
     | `max_speed`, `max_turn_rate` | 1.0, 1.0 | action scaling, m/s and rad/s |
     | `filter` | `"seif"` | any of `seif_gym.slam.FILTERS` |
     | `max_active` | 8 | SEIF's active-landmark bound `k` (ignored by the exact filters) |
-    | `ml_association` | `"joint"` | with `data_association="ml"`: the associator preset (`seif_gym.slam.association.ASSOCIATOR_PRESETS`): `"joint"` (joint compatibility, `-v1`) or `"individual"` (`-v0`) |
+    | `ml_association` | `"individual"` | with `data_association="ml"`: the associator preset (`seif_gym.slam.association.ASSOCIATOR_PRESETS`): `"individual"` (individual compatibility, as in 0.1; every version) or `"joint"` (joint compatibility with deferred lone loop closures: fewer false closures for the EKF; slower, and it discards lone revisits) |
     | `mean_recovery` | `"wavefront"` | SEIF/ESEIF mean recovery: `"wavefront"` (`-v1`), Thrun's round-robin `"amortized"` (`-v0`), or `"exact"` (a sparse solve every step) |
     | `data_association` | `"known"` | `"known"`: the filter gets the true landmark ids; `"ml"`: maximum-likelihood association (`seif_gym.slam.Associator`: χ² gate, new-landmark threshold, mutual exclusion; SEIF covariances from the Markov blanket), so that agents and filters face association errors |
     | `reward` | `"map_error"` | or `"information_gain"` |
@@ -331,13 +331,11 @@ class SeifExploreEnv(gym.Env):
 
     * v1 (seif_gym 0.2): the SEIF and ESEIF recover their mean with the
       wavefront recovery (`mean_recovery="wavefront"`), which keeps up with
-      loop closures; with `data_association="ml"` the joint-compatibility
-      associator. `info["pose_nees"]` uses the filter's own pose covariance
+      loop closures. `info["pose_nees"]` uses the filter's own pose covariance
       (in every version; `pose_nees_blanket` holds the former value).
     * v0 (seif_gym 0.1): Thrun's round-robin amortized recovery
-      (`mean_recovery="amortized"`) and the individual-compatibility
-      associator; still registered, reproduces 0.1's observations and rewards
-      bit for bit.
+      (`mean_recovery="amortized"`); still registered, reproduces 0.1's
+      observations and rewards bit for bit (with `data_association="ml"` too).
     """
 
     metadata = {"render_modes": ["human", "rgb_array"], "render_fps": 10}
@@ -360,7 +358,7 @@ class SeifExploreEnv(gym.Env):
         max_active: int | None = 8,
         data_association: str = "known",
         mean_recovery: str = "wavefront",
-        ml_association: str = "joint",
+        ml_association: str = "individual",
         reward: str = "map_error",
         d_cap: float = 2.0,
         wall_penalty: float = 0.005,

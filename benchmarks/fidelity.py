@@ -76,8 +76,10 @@ FILTERS = [
 ]
 
 
-def score_run(filt, run, reference: dict[int, np.ndarray] | None = None) -> dict[str, float]:
-    """Feed ``run`` through ``filt``; map RMSE, pose RMSE, ANEES, lag, time per step.
+def score_run(
+    filt, run, reference: dict[int, np.ndarray] | None = None
+) -> tuple[dict[str, float], dict[int, np.ndarray]]:
+    """Feed ``run`` through ``filt``; its metrics (map RMSE, pose RMSE, ANEES, lag, time per step) and final map.
 
     ``reference``: the EKF's final landmark estimates by id, for the distance to the EKF's map.
     """
@@ -102,11 +104,11 @@ def score_run(filt, run, reference: dict[int, np.ndarray] | None = None) -> dict
         "anees": float(np.mean(nees)),
         "us_per_step": float(np.median(seconds) * 1e6),
         "landmarks": len(ids),
+        "steps": steps,
     }
     if reference is not None:
         against = np.array([reference[int(i)] for i in ids])
         result["to_ekf"] = float(np.sqrt(np.mean(np.sum((estimates - against) ** 2, axis=1))))
-    result["final_map"] = {int(i): estimates[k] for k, i in enumerate(ids)}  # dropped before the summary
     exact_mean = getattr(filt, "exact_mean", None)
     if exact_mean is not None:
         exact = exact_mean()[3:].reshape(-1, 2)
@@ -114,7 +116,7 @@ def score_run(filt, run, reference: dict[int, np.ndarray] | None = None) -> dict
     for counter in ("relocalizations", "split_relocalizations", "discarded_measurements"):
         if hasattr(filt, counter):
             result[counter] = int(getattr(filt, counter))
-    return result
+    return result, {int(i): estimates[k] for k, i in enumerate(ids)}
 
 
 def run_job(job: tuple[str, int, tuple[int, ...]]) -> tuple[str, int, dict[str, dict[str, float]]]:
@@ -127,11 +129,9 @@ def run_job(job: tuple[str, int, tuple[int, ...]]) -> tuple[str, int, dict[str, 
         for k in ks if cls is not EKF else (None,):
             filt_options = dict(options) if cls is EKF else {**options, "max_active": k}
             key = label if cls is EKF else f"{label} k={k}"
-            out[key] = score_run(cls(motion, sensor, run.initial_pose, **filt_options), run, reference)
+            out[key], final_map = score_run(cls(motion, sensor, run.initial_pose, **filt_options), run, reference)
             if cls is EKF:
-                reference = out[key]["final_map"]
-    for result in out.values():
-        del result["final_map"]
+                reference = final_map
     return name, seed, out
 
 
@@ -193,8 +193,7 @@ def main(argv: list[str] | None = None) -> int:
         results = list(pool.map(run_job, jobs))
     elapsed = time.perf_counter() - started
     rows = summarize(results, ks)
-    steps = int(np.mean([make_loop_run(FIDELITY_SCENARIOS[n], s)[2].steps for n, s, _ in jobs[:1]]))
-    table = markdown_table(rows, len(results), steps)
+    table = markdown_table(rows, len(results), int(rows[0]["steps"]))  # the mean steps of a run
     print(f"# Fidelity: {len(args.scenarios)} scenarios x {args.seeds} seeds, k = {', '.join(map(str, ks))} "
           f"({elapsed:.0f} s, {args.jobs} jobs, Python {platform.python_version()})")  # fmt: skip
     print(table)

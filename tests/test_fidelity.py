@@ -88,6 +88,10 @@ def test_scenario_rejects_bad_arguments():
         LoopScenario(shape="triangle")
     with pytest.raises(ValueError, match="sensor_range"):
         LoopScenario(sensor_range=-1.0)
+    with pytest.raises(TypeError, match="laps"):
+        LoopScenario(laps="many")
+    with pytest.raises(ValueError, match="fov"):
+        LoopScenario(fov=7.0)
     with pytest.raises(ValueError, match="min_separation"):
         LoopScenario(landmark_spacing=1.0, min_separation=2.0)
     with pytest.raises(ValueError, match="seed"):

@@ -69,13 +69,9 @@ def busy(cls, ring_loop_run, steps: int, **options):
     return filt
 
 
-def next_step(ring_loop_run, t: int):
-    _, _, run = ring_loop_run
-    return run.controls[t], run.dt, run.ranges[t], run.bearings[t], run.ids[t]
-
-
-def find_step(filt, ring_loop_run, start: int, wanted) -> int:
-    """The first step from ``start`` whose update does what ``wanted(copy_before, copy_after)`` says."""
+def advance_to(filt, ring_loop_run, start: int, wanted) -> int:
+    """Feed ``filt`` from step ``start`` up to (not including) the first step whose update does what
+    ``wanted(copy_before, copy_after)`` says, and return that step."""
     _, _, run = ring_loop_run
     probe = copy.deepcopy(filt)
     for t in range(start, run.steps):
@@ -83,22 +79,48 @@ def find_step(filt, ring_loop_run, start: int, wanted) -> int:
         probe.predict(run.controls[t], run.dt)
         probe.update(run.ranges[t], run.bearings[t], run.ids[t])
         if wanted(before, probe):
+            for s in range(start, t):
+                filt.predict(run.controls[s], run.dt)
+                filt.update(run.ranges[s], run.bearings[s], run.ids[s])
             return t
     raise AssertionError("no step of the run exercises this stage")
 
 
-def advance_to_busy_step(filt, ring_loop_run, start: int) -> int:
-    """Feed ``filt`` up to the first step that adds a landmark and deactivates one (every stage runs)."""
-    t = find_step(
-        filt, ring_loop_run, start,
-        lambda before, after: after.num_landmarks > before.num_landmarks
-        and bool(set(before.active_landmarks.tolist()) - set(after.active_landmarks.tolist())),
-    )  # fmt: skip
+def adds_and_deactivates(before, after) -> bool:
+    """A step that adds a landmark (capacity may grow) and deactivates one: every SEIF stage runs."""
+    added = after.num_landmarks > before.num_landmarks
+    return added and bool(set(before.active_landmarks.tolist()) - set(after.active_landmarks.tolist()))
+
+
+def check_failed_step(filt, ring_loop_run, t, monkeypatch, module, name, *, call_through, on_call=1, stage="update"):
+    """Step ``t`` with ``module.name`` failing on its ``on_call``-th call: the filter is unchanged, then goes on
+    exactly as a copy that never failed."""
     _, _, run = ring_loop_run
-    for s in range(start, t):
-        filt.predict(run.controls[s], run.dt)
-        filt.update(run.ranges[s], run.bearings[s], run.ids[s])
-    return t
+    control, dt, ranges, bearings, ids = run.controls[t], run.dt, run.ranges[t], run.bearings[t], run.ids[t]
+    reference = copy.deepcopy(filt)
+    stand_in = failing(getattr(module, name), call_through=call_through, on_call=on_call)
+    monkeypatch.setattr(module, name, stand_in)
+    if stage != "predict":
+        filt.predict(control, dt)
+        reference.predict(control, dt)
+    before = state_of(filt)
+    with pytest.raises(InjectedFailure):
+        filt.predict(control, dt) if stage == "predict" else filt.update(ranges, bearings, ids)
+    assert stand_in.calls["n"] == on_call
+    assert_same_state(before, state_of(filt))
+    monkeypatch.undo()
+    if stage == "predict":
+        filt.predict(control, dt)
+        reference.predict(control, dt)
+    filt.update(ranges, bearings, ids)
+    reference.update(ranges, bearings, ids)
+    assert_same_state(state_of(reference), state_of(filt))
+
+
+def cases(stages: list[tuple], stage_column: int, instead_only: str) -> list[tuple]:
+    """Each stage failing instead of its computation and after it (midway), except ``instead_only``."""
+    return [(*stage, through) for stage in stages for through in (False, True)
+            if not (through and stage[stage_column] == instead_only)]  # fmt: skip
 
 
 # (module, attribute, filter options, what the failing step must exercise)
@@ -110,11 +132,9 @@ SEIF_STAGES = [
     (seif_module, "recover_mean_exact", {"mean_recovery": "exact"}, "update"),
     (_kernels, "sparsify", {}, "sparsify"),
 ]
-
-
 # The compiled motion update (gather, compute, scatter in one kernel) can only fail before it writes: its
 # "midway" case is not a failure that can happen, and the journal of a motion update saves no rows for it.
-SEIF_CASES = [(*stage, through) for stage in SEIF_STAGES for through in (False, True) if not (through and stage[3] == "predict")]
+SEIF_CASES = cases(SEIF_STAGES, 3, "predict")
 
 
 @pytest.mark.parametrize(
@@ -123,34 +143,11 @@ SEIF_CASES = [(*stage, through) for stage in SEIF_STAGES for through in (False, 
 )  # fmt: skip
 def test_seif_failure_leaves_filter_unchanged(ring_loop_run, monkeypatch, module, name, options, stage, call_through):
     filt = busy(SEIF, ring_loop_run, 60, max_active=4, **options)
-    # a step that sparsifies and sees a new landmark (capacity may grow), so that every stage runs
-    t = advance_to_busy_step(filt, ring_loop_run, 60)
-    control, dt, ranges, bearings, ids = next_step(ring_loop_run, t)
-    reference = copy.deepcopy(filt)
-    stand_in = failing(getattr(module, name), call_through=call_through)
-    monkeypatch.setattr(module, name, stand_in)
-    if stage == "predict":
-        before = state_of(filt)
-        with pytest.raises(InjectedFailure):
-            filt.predict(control, dt)
-    else:
-        filt.predict(control, dt)
-        reference.predict(control, dt)
-        before = state_of(filt)
-        with pytest.raises(InjectedFailure):
-            filt.update(ranges, bearings, ids)
-    assert stand_in.calls["n"] == 1
-    assert_same_state(before, state_of(filt))
-    # and the filter goes on exactly as one that never failed
-    monkeypatch.undo()
-    if stage == "predict":
-        filt.predict(control, dt)
-        reference.predict(control, dt)
-    filt.update(ranges, bearings, ids)
-    reference.update(ranges, bearings, ids)
-    assert_same_state(state_of(reference), state_of(filt))
+    t = advance_to(filt, ring_loop_run, 60, adds_and_deactivates)
+    check_failed_step(filt, ring_loop_run, t, monkeypatch, module, name, call_through=call_through, stage=stage)
 
 
+# (module, attribute, which call of it fails, the stage)
 ESEIF_STAGES = [
     (eseif_module, "relocalization_pose_information", 1, "plan"),
     (_kernels, "measurement_update", 1, "alpha"),  # (b): incorporate z_alpha
@@ -160,10 +157,8 @@ ESEIF_STAGES = [
     (_kernels, "recover_mean_wavefront", 2, "recover after relocalization"),
     (_kernels, "recover_mean", 2, "amortized recover after relocalization"),  # with mean_recovery="amortized"
 ]
-
-
 # planning writes nothing, so failing after it is the same case as failing instead of it
-ESEIF_CASES = [(*stage, through) for stage in ESEIF_STAGES for through in (False, True) if not (through and stage[3] == "plan")]
+ESEIF_CASES = cases(ESEIF_STAGES, 3, "plan")
 
 
 @pytest.mark.parametrize(
@@ -173,37 +168,12 @@ ESEIF_CASES = [(*stage, through) for stage in ESEIF_STAGES for through in (False
 def test_eseif_failure_leaves_filter_unchanged(ring_loop_run, monkeypatch, module, name, on_call, stage, call_through):
     recovery = "amortized" if name == "recover_mean" else "wavefront"
     filt = busy(ESEIF, ring_loop_run, 60, max_active=3, mean_recovery=recovery)
-    t = find_step(filt, ring_loop_run, 60, lambda before, after: after.relocalizations > before.relocalizations)
-    _, _, run = ring_loop_run
-    for s in range(60, t):
-        filt.predict(run.controls[s], run.dt)
-        filt.update(run.ranges[s], run.bearings[s], run.ids[s])
-    control, dt, ranges, bearings, ids = next_step(ring_loop_run, t)
-    filt.predict(control, dt)
-    reference = copy.deepcopy(filt)
-    before = state_of(filt)
-    stand_in = failing(getattr(module, name), call_through=call_through, on_call=on_call)
-    monkeypatch.setattr(module, name, stand_in)
-    with pytest.raises(InjectedFailure):
-        filt.update(ranges, bearings, ids)
-    assert stand_in.calls["n"] == on_call
-    assert_same_state(before, state_of(filt))
-    monkeypatch.undo()
-    filt.update(ranges, bearings, ids)
-    reference.update(ranges, bearings, ids)
-    assert filt.relocalizations == reference.relocalizations
-    assert_same_state(state_of(reference), state_of(filt))
+    t = advance_to(filt, ring_loop_run, 60, lambda before, after: after.relocalizations > before.relocalizations)
+    check_failed_step(filt, ring_loop_run, t, monkeypatch, module, name, call_through=call_through, on_call=on_call)
 
 
 def test_reference_path_failure_leaves_filter_unchanged(ring_loop_run, monkeypatch):
     """The plain numpy path restores too (its recovery saves copies instead of logging)."""
     filt = busy(SEIF, ring_loop_run, 60, max_active=4, implementation="reference")
-    control, dt, ranges, bearings, ids = next_step(ring_loop_run, advance_to_busy_step(filt, ring_loop_run, 60))
-    filt.predict(control, dt)
-    before = state_of(filt)
-    stand_in = failing(seif_module.sparsify, call_through=True)
-    monkeypatch.setattr(seif_module, "sparsify", stand_in)
-    with pytest.raises(InjectedFailure):
-        filt.update(ranges, bearings, ids)
-    assert stand_in.calls["n"] == 1
-    assert_same_state(before, state_of(filt))
+    t = advance_to(filt, ring_loop_run, 60, adds_and_deactivates)
+    check_failed_step(filt, ring_loop_run, t, monkeypatch, seif_module, "sparsify", call_through=True)

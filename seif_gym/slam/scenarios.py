@@ -24,6 +24,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
+from seif_gym.slam._validation import as_nonnegative_scalar, as_positive_scalar
 from seif_gym.slam.models import RangeBearingSensor, VelocityMotionModel
 from seif_gym.slam.simulation import SimulatedRun, simulate_run
 
@@ -85,10 +86,10 @@ class LoopScenario:
             raise ValueError(f"shape must be one of {SHAPES}, got {self.shape!r}")
         for name in ("size", "laps", "speed", "dt", "landmark_spacing", "band", "sensor_range", "fov",
                      "sigma_range", "sigma_bearing"):  # fmt: skip
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, (int, float)) or not value > 0 or not math.isfinite(value):
-                raise ValueError(f"{name} must be a finite positive number, got {value!r}")
-        if not 0.0 <= self.min_separation < self.landmark_spacing:
+            as_positive_scalar(getattr(self, name), name)
+        if self.fov > 2.0 * math.pi + 1e-12:
+            raise ValueError(f"fov must be at most 2*pi, got {self.fov!r}")
+        if not as_nonnegative_scalar(self.min_separation, "min_separation") < self.landmark_spacing:
             raise ValueError(f"min_separation must lie in [0, landmark_spacing), got {self.min_separation!r}")
         if self.shape == "rectangle" and self.size <= 2.0:
             raise ValueError(f"a rectangle needs size > 2 (the corner radius), got {self.size!r}")

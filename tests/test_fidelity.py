@@ -19,7 +19,7 @@ import numpy as np
 import pytest
 
 from seif_gym.slam import EKF, ESEIF, SEIF
-from seif_gym.slam.scenarios import FIDELITY_SCENARIOS, LoopScenario, make_loop_run
+from seif_gym.slam.scenarios import FIDELITY_SCENARIOS, LoopScenario, loop_landmarks, loop_path_controls, make_loop_run
 
 SEEDS = (0, 1, 2)
 KS = (4, 8, 16)
@@ -98,6 +98,12 @@ def test_scenario_rejects_bad_arguments():
         make_loop_run(LoopScenario(), -1)
     with pytest.raises(TypeError, match="scenario"):
         make_loop_run("circle", 0)
+    with pytest.raises(TypeError, match="scenario"):
+        loop_path_controls(None)
+    with pytest.raises(ValueError, match="path"):
+        loop_landmarks(LoopScenario(), np.zeros((3, 3)), np.random.default_rng(0))
+    with pytest.raises(TypeError, match="rng"):
+        loop_landmarks(LoopScenario(), np.zeros((3, 2)), 0)
 
 
 def test_module_doctests_pass():

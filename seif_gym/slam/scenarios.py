@@ -24,7 +24,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
-from seif_gym.slam._validation import as_nonnegative_scalar, as_positive_scalar
+from seif_gym.slam._validation import as_finite_array, as_nonnegative_scalar, as_positive_scalar
 from seif_gym.slam.models import RangeBearingSensor, VelocityMotionModel
 from seif_gym.slam.simulation import SimulatedRun, simulate_run
 
@@ -109,6 +109,11 @@ FIDELITY_SCENARIOS: dict[str, LoopScenario] = {
 }
 
 
+def _check_scenario(scenario: object) -> None:
+    if not isinstance(scenario, LoopScenario):
+        raise TypeError(f"scenario must be a LoopScenario, got {type(scenario).__name__}")
+
+
 def _segments(scenario: LoopScenario) -> list[tuple[float, float]]:
     """One lap as ``(duration, omega)`` arcs at ``scenario.speed``."""
     v, size = scenario.speed, scenario.size
@@ -128,6 +133,7 @@ def loop_path_controls(scenario: LoopScenario) -> tuple[FloatArray, FloatArray]:
     The start is on the path, heading along it; the path of one lap ends where
     it began.
     """
+    _check_scenario(scenario)
     segments = _segments(scenario)
     lap_time = sum(duration for duration, _ in segments)
     steps = int(round(scenario.laps * lap_time / scenario.dt))
@@ -160,6 +166,12 @@ def loop_landmarks(scenario: LoopScenario, path: FloatArray, rng: np.random.Gene
     and kept when they lie within ``band`` of the path and far enough from
     every kept landmark, until the expected count is reached (or the draws run out).
     """
+    _check_scenario(scenario)
+    path = as_finite_array(path, "path", (None, 2))
+    if len(path) == 0:
+        raise ValueError("path must hold at least one point")
+    if not isinstance(rng, np.random.Generator):
+        raise TypeError(f"rng must be a numpy.random.Generator, got {type(rng).__name__}")
     low = path.min(axis=0) - scenario.band
     high = path.max(axis=0) + scenario.band
     # area of the band, estimated on a grid of the bounding box
@@ -199,8 +211,7 @@ def make_loop_run(
     ``numpy.random.default_rng(seed)`` draws the landmarks first and then all
     noise, so a seed gives the same run bit for bit.
     """
-    if not isinstance(scenario, LoopScenario):
-        raise TypeError(f"scenario must be a LoopScenario, got {type(scenario).__name__}")
+    _check_scenario(scenario)
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
         raise ValueError(f"seed must be a non-negative int, got {seed!r}")
     rng = np.random.default_rng(int(seed))

@@ -76,6 +76,9 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
+from seif_gym.datasets._arrays import frozen
+from seif_gym.slam.models import wrap_angle
+
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
 
@@ -89,12 +92,6 @@ _ROBOT_FILES = {"odometry": "Robot{}_Odometry.dat", "measurement": "Robot{}_Meas
 __all__ = [
     "ROBOTS", "GroundTruth", "Landmarks", "Measurements", "MrclamLog", "Odometry", "load", "load_all",
 ]  # fmt: skip
-
-
-def _frozen(array, dtype) -> NDArray:
-    array = np.array(array, dtype=dtype, copy=True)
-    array.setflags(write=False)
-    return array
 
 
 @dataclass(frozen=True)
@@ -200,7 +197,7 @@ class GroundTruth:
         """
         t_arr = np.asarray(t, dtype=np.float64)
         theta = np.interp(t_arr, self.time, np.unwrap(self.theta))
-        theta = (theta + np.pi) % (2.0 * np.pi) - np.pi
+        theta = wrap_angle(theta)
         out = np.stack([np.interp(t_arr, self.time, self.x), np.interp(t_arr, self.time, self.y), theta], axis=-1)
         return out
 
@@ -325,11 +322,11 @@ def _sorted_rows(table: NDArray) -> NDArray:
 
 def _measurements(table: NDArray, subject: IntArray, rows: NDArray[np.bool_]) -> Measurements:
     return Measurements(
-        time=_frozen(table[rows, 0], np.float64),
-        subject=_frozen(subject[rows], np.int64),
-        barcode=_frozen(table[rows, 1], np.int64),
-        range=_frozen(table[rows, 2], np.float64),
-        bearing=_frozen(table[rows, 3], np.float64),
+        time=frozen(table[rows, 0], np.float64),
+        subject=frozen(subject[rows], np.int64),
+        barcode=frozen(table[rows, 1], np.int64),
+        range=frozen(table[rows, 2], np.float64),
+        bearing=frozen(table[rows, 3], np.float64),
     )
 
 
@@ -343,13 +340,13 @@ def _read_shared(folder: Path) -> tuple[IntArray, Landmarks]:
         raise ValueError(f"{folder / LANDMARKS_FILE}: subjects must be distinct integers")
     has_std = lm.shape[1] == 5
     landmarks = Landmarks(
-        subject=_frozen(lm[:, 0], np.int64),
-        x=_frozen(lm[:, 1], np.float64),
-        y=_frozen(lm[:, 2], np.float64),
-        std_x=_frozen(lm[:, 3], np.float64) if has_std else None,
-        std_y=_frozen(lm[:, 4], np.float64) if has_std else None,
+        subject=frozen(lm[:, 0], np.int64),
+        x=frozen(lm[:, 1], np.float64),
+        y=frozen(lm[:, 2], np.float64),
+        std_x=frozen(lm[:, 3], np.float64) if has_std else None,
+        std_y=frozen(lm[:, 4], np.float64) if has_std else None,
     )
-    return _frozen(barcodes, np.int64), landmarks
+    return frozen(barcodes, np.int64), landmarks
 
 
 def _check_robot(robot) -> int:
@@ -378,14 +375,14 @@ def _load_robot(folder: Path, robot: int, barcodes: IntArray, landmarks: Landmar
 
     return MrclamLog(
         robot=robot,
-        odometry=Odometry(_frozen(odo[:, 0], np.float64), _frozen(odo[:, 1], np.float64),
-                          _frozen(odo[:, 2], np.float64)),  # fmt: skip
+        odometry=Odometry(frozen(odo[:, 0], np.float64), frozen(odo[:, 1], np.float64),
+                          frozen(odo[:, 2], np.float64)),  # fmt: skip
         measurements=_measurements(meas, subject, is_landmark),
         robot_sightings=_measurements(meas, subject, is_robot),
-        ground_truth=GroundTruth(*(_frozen(gt[:, k], np.float64) for k in range(4))),
+        ground_truth=GroundTruth(*(frozen(gt[:, k], np.float64) for k in range(4))),
         landmarks=landmarks,
         barcodes=barcodes,
-        dropped_barcodes=_frozen(read[dropped], np.int64),
+        dropped_barcodes=frozen(read[dropped], np.int64),
         path=folder,
     )
 

@@ -48,6 +48,8 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
+from seif_gym.datasets._arrays import frozen
+
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
 
@@ -59,12 +61,6 @@ _ARRAYS = (
     "odo_time_ms", "odo_speed", "odo_steering", "laser_time_ms", "det_scan", "det_range",
     "det_bearing", "det_diameter", "gps_time_ms", "gps_x", "gps_y",
 )  # fmt: skip
-
-
-def _frozen(array, dtype) -> NDArray:
-    array = np.array(array, dtype=dtype, copy=True)
-    array.setflags(write=False)
-    return array
 
 
 @dataclass(frozen=True)
@@ -232,23 +228,23 @@ def load(path, *, verify: bool = False) -> VictoriaPark:
     start = np.searchsorted(scan_index, np.arange(n_scan + 1))
 
     def clock(ms):
-        return _frozen(ms, np.int64), _frozen(np.asarray(ms, dtype=np.float64) / 1000.0, np.float64)
+        return frozen(ms, np.int64), frozen(np.asarray(ms, dtype=np.float64) / 1000.0, np.float64)
 
     odo_ms, odo_s = clock(d["odo_time_ms"])
     scan_ms, scan_s = clock(d["laser_time_ms"])
     gps_ms, gps_s = clock(d["gps_time_ms"])
     return VictoriaPark(
-        odometry=Odometry(odo_ms, odo_s, _frozen(d["odo_speed"], np.float64), _frozen(d["odo_steering"], np.float64)),
+        odometry=Odometry(odo_ms, odo_s, frozen(d["odo_speed"], np.float64), frozen(d["odo_steering"], np.float64)),
         scans=Scans(
             time_ms=scan_ms,
             time=scan_s,
-            start=_frozen(start, np.int64),
-            scan=_frozen(scan_index, np.int64),
-            range=_frozen(d["det_range"], np.float64),
-            bearing=_frozen(d["det_bearing"] - 0.5 * math.pi, np.float64),
-            diameter=_frozen(d["det_diameter"], np.float64),
+            start=frozen(start, np.int64),
+            scan=frozen(scan_index, np.int64),
+            range=frozen(d["det_range"], np.float64),
+            bearing=frozen(d["det_bearing"] - 0.5 * math.pi, np.float64),
+            diameter=frozen(d["det_diameter"], np.float64),
         ),
-        gps=Gps(gps_ms, gps_s, _frozen(d["gps_x"], np.float64), _frozen(d["gps_y"], np.float64)),
+        gps=Gps(gps_ms, gps_s, frozen(d["gps_x"], np.float64), frozen(d["gps_y"], np.float64)),
         path=file,
     )
 

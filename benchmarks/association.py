@@ -62,10 +62,16 @@ def parse_options(text: str) -> dict[str, object]:
     return options
 
 
-def run_one(scenario_name: str, seed: int, filter_name: str, options: dict | None = None) -> dict[str, float]:
-    """One run with unknown correspondences; the audit's counts and timings."""
+def run_one(scenario_name: str, seed: int, filter_name: str, options: dict | None = None,
+            max_active: int | None = None) -> dict[str, float]:
+    """One run with unknown correspondences; the audit's counts and timings.
+
+    ``max_active`` overrides the SEIF's and ESEIF's ``k`` (8 by default).
+    """
     motion, sensor, run = make_loop_run(FIDELITY_SCENARIOS[scenario_name], seed)
     cls, filter_options = FILTERS[filter_name]
+    if max_active is not None and "max_active" in filter_options:
+        filter_options = {**filter_options, "max_active": max_active}
     filt = cls(motion, sensor, run.initial_pose, **filter_options)
     associator = Associator(**(options or {}))
     audit = AssociationAudit()
@@ -98,6 +104,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--filters", default="ekf,seif", help="comma-separated, of " + ", ".join(FILTERS))
     parser.add_argument("--scenarios", default=",".join(FIDELITY_SCENARIOS), help="comma-separated scenario names")
     parser.add_argument("--options", default="", help="Associator keyword arguments, e.g. landmark_density=0.5")
+    parser.add_argument("--max-active", type=int, default=None, help="k of the SEIF and ESEIF (default 8)")
     parser.add_argument("--jobs", type=int, default=os.cpu_count() or 1, help="worker processes")
     args = parser.parse_args(argv)
     filters = [f.strip().lower() for f in args.filters.split(",") if f.strip()]
@@ -112,7 +119,9 @@ def main(argv: list[str] | None = None) -> int:
         parser.error("--seeds must be at least 1")
     options = parse_options(args.options)
     Associator(**options)  # bad options fail here, before the workers start
-    jobs = [(s, seed, f, options) for s in scenarios for f in filters for seed in range(args.seeds)]
+    if args.max_active is not None and args.max_active < 1:
+        parser.error("--max-active must be at least 1")
+    jobs = [(s, seed, f, options, args.max_active) for s in scenarios for f in filters for seed in range(args.seeds)]
     started = time.perf_counter()
     if args.jobs > 1:
         with ProcessPoolExecutor(args.jobs) as pool:

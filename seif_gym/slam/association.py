@@ -287,7 +287,7 @@ class _JointSearch:
         return self.best[2]
 
     def _state_of(self, pairs: list[int]):
-        state = ([], np.zeros((0, 0)), np.zeros(0), 0.0, 0.0)
+        state: tuple[list[int], FloatArray, FloatArray, float, float] = ([], np.zeros((0, 0)), np.zeros(0), 0.0, 0.0)
         for k in pairs:
             grown = self._extend(state[0], state[1], state[2], state[3], state[4], k)
             if grown is None:
@@ -852,6 +852,7 @@ class Associator:
             return method(indices)
 
     def _signature_term(self, filt, signatures, ranges, pair_meas, pair_landmark) -> FloatArray:
+        assert self.signature_sigma is not None  # the caller checks
         signatures = np.asarray(signatures, dtype=np.float64)
         ids = filt.landmark_ids[pair_landmark].tolist()
         means = np.array([self.signatures.mean.get(i, np.nan) for i in ids])
@@ -945,12 +946,12 @@ class Associator:
         nu, H = pair_innovations(pose, candidates, ranges, bearings, pair_meas[gated], pair_slot[gated])
         cov = joint_innovation_covariance(H, pair_slot[gated], pair_meas[gated], joint, noise)
         position = {int(k): p for p, k in enumerate(gated.tolist())}
-        local = [position[int(k)] for k in chosen.tolist()]
+        seed = [position[int(k)] for k in chosen.tolist()]
+        local = np.array(seed, dtype=np.int64)
         if self.joint and len(np.unique(pair_meas[gated])) > 1:
             local = jcbb(nu, cov, pair_meas[gated], pair_landmark[gated], self.joint_gate, self.max_nodes,
-                         initial=local).tolist()  # fmt: skip
+                         initial=seed)  # fmt: skip
         if self.landmark_density > 0.0:
-            local = np.array(local, dtype=np.int64)
             k = gated[local]
             r = ranges[pair_meas[k]]
             sigma2 = r * np.exp(0.5 * logdet[k])  # isotropic Cartesian variance of the projected offset
@@ -965,8 +966,8 @@ class Associator:
                 if margin[worst] >= 0.0:
                     break
                 keep[np.flatnonzero(keep)[worst]] = False
-            local = local[keep].tolist()
-        return gated[np.array(sorted(local), dtype=np.int64)]
+            local = local[keep]
+        return gated[np.sort(local)]
 
     def _defer_lone_closures(self, filt, chosen: IntArray, pair_landmark: IntArray) -> IntArray:
         """Drop the loop-closing pairs of ``chosen`` until enough distinct landmarks back them.

@@ -1,0 +1,359 @@
+"""The leaderboard: every baseline and every shipped policy on every registered variant.
+
+Usage::
+
+    python -m agents.benchmark [--variants SeifExplore,SeifExploreLoop,...] [--version 1]
+        [--episodes 100] [--seed 1000000] [--agents ...] [--jobs 2] [--out benchmark] [--quiet]
+
+The protocol is in ``docs/benchmark.md``: each variant is run on the same
+*held-out* seeds ``seed … seed + episodes − 1`` (default 1 000 000 …
+1 000 099; training and checkpoint selection never reset with them), every
+agent on the same seeds, deterministic actions, through
+:func:`agents.evaluate.evaluate_agents`. For each variant the agents are
+compared with the best baseline (the baseline of lowest mean final map error)
+by the paired per-seed difference of their final map errors, with a 95 %
+Student-t interval; an agent *beats* the best baseline only when that interval
+lies below zero.
+
+A shipped policy (:data:`SHIPPED_POLICIES`) runs on every variant whose
+observation and action spaces it accepts; on the others it is left out and
+the leaderboard says so.
+
+Written to ``--out``:
+
+``leaderboard.md``
+    One table per variant (agents by mean final map error) and the verdicts.
+``leaderboard.csv`` / ``leaderboard.json``
+    One row per variant × agent: :data:`LEADERBOARD_COLUMNS`.
+``<env id>/``
+    :func:`agents.evaluate.write_outputs` of that variant: ``results.csv``
+    (per episode), ``summary.json``, ``summary.md`` and ``map_error.png``
+    (map error over time, the plot of the variant).
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import math
+import sys
+import time
+from collections.abc import Mapping, Sequence
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+import scipy.stats
+
+import seif_gym
+from agents import BASELINES
+from agents.evaluate import evaluate_agents, write_outputs
+
+__all__ = [
+    "HELD_OUT_SEED",
+    "VALIDATION_SEED",
+    "LEADERBOARD_COLUMNS",
+    "SHIPPED_POLICIES",
+    "ShippedPolicy",
+    "benchmark_variant",
+    "default_variants",
+    "main",
+    "paired_difference",
+    "policy_fits",
+    "run_benchmark",
+]
+
+#: First held-out seed of the protocol (reporting only).
+HELD_OUT_SEED = 1_000_000
+#: First validation seed of the protocol (checkpoint and hyperparameter selection).
+VALIDATION_SEED = 500_000
+
+POLICY_DIR = Path(__file__).parent / "policies"
+
+
+@dataclass(frozen=True)
+class ShippedPolicy:
+    """A trained policy shipped in ``agents/policies``.
+
+    Attributes
+    ----------
+    path : Path
+        The Stable-Baselines3 ``.zip``.
+    trained_on : str
+        The env id it was trained on.
+    recipe : str
+        Where its exact training configuration is written down.
+    """
+
+    path: Path
+    trained_on: str
+    recipe: str
+
+
+#: label -> the explorers shipped with the package (the adversary is not an explorer).
+SHIPPED_POLICIES: dict[str, ShippedPolicy] = {
+    "ppo": ShippedPolicy(POLICY_DIR / "ppo_seif_explore.zip", "SeifExplore-v0", "README.md, 'Training'"),
+}
+
+#: Columns of ``leaderboard.csv`` (and keys of each row of ``leaderboard.json``).
+LEADERBOARD_COLUMNS: tuple[str, ...] = (
+    "env_id",
+    "agent",
+    "kind",
+    "episodes",
+    "final_map_error",
+    "final_map_error_ci95",
+    "pose_rmse",
+    "landmarks_mapped",
+    "return",
+    "best_baseline",
+    "difference",
+    "difference_ci95_low",
+    "difference_ci95_high",
+    "verdict",
+)
+
+
+def default_variants(version: int | None = None) -> list[str]:
+    """The env ids of every layout at ``version`` (default the newest), in registration order."""
+    version = seif_gym.LATEST_VERSION if version is None else version
+    if version not in seif_gym.VERSIONS:
+        raise ValueError(f"version must be one of {sorted(seif_gym.VERSIONS)}, got {version!r}")
+    return [env_id for env_id in seif_gym.VARIANTS if env_id.endswith(f"-v{version}")]
+
+
+def _resolve_variants(names: Sequence[str], version: int | None) -> list[str]:
+    """Env ids from layout names (``SeifExploreLoop``) or ids (``SeifExploreLoop-v0``)."""
+    known = default_variants(version)
+    resolved: list[str] = []
+    for name in names:
+        if name in seif_gym.VARIANTS:
+            env_id = name
+        else:
+            matches = [env_id for env_id in known if env_id.rsplit("-v", 1)[0] == name]
+            if not matches:
+                layouts = sorted({env_id.rsplit("-v", 1)[0] for env_id in seif_gym.VARIANTS})
+                raise ValueError(f"variants: unknown variant {name!r} (layouts: {', '.join(layouts)}; or an env id)")
+            env_id = matches[0]
+        if env_id not in resolved:
+            resolved.append(env_id)
+    return resolved
+
+
+def policy_fits(policy: ShippedPolicy, env_id: str) -> bool:
+    """Whether ``policy`` accepts the observation and action spaces of ``env_id``."""
+    from stable_baselines3 import PPO
+
+    model = PPO.load(policy.path, device="cpu")
+    env = gym.make(env_id)
+    try:
+        return model.observation_space == env.observation_space and model.action_space == env.action_space
+    finally:
+        env.close()
+
+
+def paired_difference(values: Sequence[float], reference: Sequence[float], confidence: float = 0.95) -> dict[str, Any]:
+    """Mean of the per-seed differences ``values - reference``, with its Student-t interval.
+
+    Parameters
+    ----------
+    values, reference : sequence of float
+        One number per seed, the same seeds in the same order.
+    confidence : float
+        Coverage of the interval.
+
+    Returns
+    -------
+    dict
+        ``mean``, ``ci95_low``, ``ci95_high`` (``None`` for one seed) and ``n``.
+
+    Notes
+    -----
+    With ``d_i = values_i - reference_i`` over ``n`` seeds, the interval is
+    ``mean(d) ± t_{(1+c)/2, n-1} s_d / sqrt(n)`` (``s_d`` with ``ddof = 1``):
+    the paired comparison, which removes the seed-to-seed spread that both
+    agents share.
+    """
+    a = np.asarray(values, dtype=np.float64)
+    b = np.asarray(reference, dtype=np.float64)
+    if a.shape != b.shape or a.ndim != 1 or a.size == 0:
+        raise ValueError(f"values and reference must be one number per seed, same length, got {a.shape} and {b.shape}")
+    if not 0.0 < confidence < 1.0:
+        raise ValueError(f"confidence must lie in (0, 1), got {confidence!r}")
+    d = a - b
+    mean = float(d.mean())
+    if d.size < 2:
+        return {"mean": mean, "ci95_low": None, "ci95_high": None, "n": int(d.size)}
+    half = float(scipy.stats.t.ppf(0.5 + 0.5 * confidence, d.size - 1) * d.std(ddof=1) / math.sqrt(d.size))
+    return {"mean": mean, "ci95_low": mean - half, "ci95_high": mean + half, "n": int(d.size)}
+
+
+def _final_errors(rows: Sequence[Mapping[str, Any]], label: str) -> tuple[list[int], list[float]]:
+    mine = sorted((row["seed"], row["final_map_error"]) for row in rows if row["agent"] == label)
+    return [seed for seed, _ in mine], [error for _, error in mine]
+
+
+def benchmark_variant(env_id: str, agents: Sequence[str], episodes: int, seed: int, out: Path,
+                      verbose: bool = False) -> list[dict[str, Any]]:  # fmt: skip
+    """Run ``agents`` (baseline names and shipped-policy labels) on ``env_id``; the leaderboard rows.
+
+    Writes the variant's :func:`~agents.evaluate.write_outputs` into ``out / env_id``.
+    """
+    specs: list[str] = []
+    labels: dict[str, str] = {}
+    kinds: dict[str, str] = {}
+    skipped: list[str] = []
+    for name in agents:
+        if name in BASELINES:
+            specs.append(name)
+            labels[name], kinds[name] = name, "baseline"
+        else:
+            policy = SHIPPED_POLICIES[name]
+            if not policy_fits(policy, env_id):
+                skipped.append(name)
+                continue
+            spec = str(policy.path)
+            specs.append(spec)
+            labels[Path(spec).stem], kinds[Path(spec).stem] = name, "policy"
+    started = time.perf_counter()
+    rows, summary = evaluate_agents(specs, episodes=episodes, seed=seed, env_id=env_id, env_kwargs={})
+    write_outputs(rows, summary, out / env_id)
+    if verbose:
+        print(f"{env_id}: {len(specs)} agents x {episodes} episodes in {time.perf_counter() - started:.0f} s"
+              + (f" (left out, spaces differ: {', '.join(skipped)})" if skipped else ""), file=sys.stderr)  # fmt: skip
+    means = {label: entry["final_map_error"]["mean"] for label, entry in summary["agents"].items()}
+    baselines = [label for label in means if kinds[label] == "baseline"]
+    best = min(baselines, key=means.__getitem__) if baselines else None
+    table: list[dict[str, Any]] = []
+    for label, entry in summary["agents"].items():
+        row: dict[str, Any] = {
+            "env_id": env_id, "agent": labels[label], "kind": kinds[label], "episodes": entry["episodes"],
+            "final_map_error": entry["final_map_error"]["mean"],
+            "final_map_error_ci95": entry["final_map_error"]["ci95_half_width"],
+            "pose_rmse": entry["pose_rmse"]["mean"], "landmarks_mapped": entry["landmarks_mapped"]["mean"],
+            "return": entry["return"]["mean"], "best_baseline": labels[best] if best else None,
+            "difference": None, "difference_ci95_low": None, "difference_ci95_high": None, "verdict": "",
+        }  # fmt: skip
+        if best is not None and label != best:
+            seeds, mine = _final_errors(rows, label)
+            best_seeds, theirs = _final_errors(rows, best)
+            assert seeds == best_seeds  # every agent runs on the same seeds
+            paired = paired_difference(mine, theirs)
+            row["difference"], row["difference_ci95_low"] = paired["mean"], paired["ci95_low"]
+            row["difference_ci95_high"] = paired["ci95_high"]
+            if paired["ci95_high"] is not None and paired["ci95_high"] < 0.0:
+                row["verdict"] = "beats"
+            elif paired["ci95_low"] is not None and paired["ci95_low"] > 0.0:
+                row["verdict"] = "worse"
+            else:
+                row["verdict"] = "tie (interval holds 0)"
+        elif label == best:
+            row["verdict"] = "best baseline"
+        table.append(row)
+    for name in skipped:
+        table.append({**dict.fromkeys(LEADERBOARD_COLUMNS), "env_id": env_id, "agent": name, "kind": "policy",
+                      "episodes": 0, "verdict": "left out: observation or action space differs"})  # fmt: skip
+    return table
+
+
+def _variant_job(args: tuple) -> list[dict[str, Any]]:
+    return benchmark_variant(*args)
+
+
+def run_benchmark(variants: Sequence[str], agents: Sequence[str], episodes: int, seed: int, out: str | Path,
+                  jobs: int = 1, verbose: bool = False) -> list[dict[str, Any]]:  # fmt: skip
+    """Every agent on every variant (``jobs`` processes, one variant each); writes the leaderboard files."""
+    if int(episodes) < 1:
+        raise ValueError(f"episodes must be positive, got {episodes!r}")
+    if int(jobs) < 1:
+        raise ValueError(f"jobs must be positive, got {jobs!r}")
+    unknown = [name for name in agents if name not in BASELINES and name not in SHIPPED_POLICIES]
+    if unknown:
+        raise ValueError(f"agents: unknown {unknown} (baselines {list(BASELINES)}, policies {list(SHIPPED_POLICIES)})")
+    folder = Path(out)
+    folder.mkdir(parents=True, exist_ok=True)
+    work = [(env_id, list(agents), int(episodes), int(seed), folder, verbose) for env_id in variants]
+    if jobs > 1 and len(work) > 1:
+        with ProcessPoolExecutor(min(int(jobs), len(work))) as pool:
+            tables = list(pool.map(_variant_job, work))
+    else:
+        tables = [_variant_job(job) for job in work]
+    rows = [row for table in tables for row in table]
+    with (folder / "leaderboard.csv").open("w", newline="") as handle:
+        writer = csv.DictWriter(handle, fieldnames=list(LEADERBOARD_COLUMNS))
+        writer.writeheader()
+        writer.writerows(rows)
+    meta = {"episodes": int(episodes), "seeds": [int(seed), int(seed) + int(episodes) - 1],
+            "seif_gym": seif_gym.__version__, "rows": rows}  # fmt: skip
+    (folder / "leaderboard.json").write_text(json.dumps(meta, indent=2, allow_nan=False) + "\n")
+    (folder / "leaderboard.md").write_text(leaderboard_markdown(rows, episodes, seed))
+    return rows
+
+
+def _number(value: Any, digits: int = 3) -> str:
+    return "n/a" if value is None else f"{value:.{digits}f}"
+
+
+def leaderboard_markdown(rows: Sequence[Mapping[str, Any]], episodes: int, seed: int) -> str:
+    """One Markdown table per variant, agents by mean final map error, with the paired verdicts."""
+    lines = [f"# seif_gym {seif_gym.__version__} leaderboard", "",
+             f"Held-out seeds {seed}…{seed + episodes - 1} ({episodes} episodes per agent and variant); "
+             "difference: paired per-seed difference of the final map error to the best baseline, "
+             "95% Student-t interval. Protocol: docs/benchmark.md.", ""]  # fmt: skip
+    for env_id in dict.fromkeys(row["env_id"] for row in rows):
+        mine = [row for row in rows if row["env_id"] == env_id]
+        ranked = sorted((row for row in mine if row["episodes"]), key=lambda row: row["final_map_error"])
+        lines += [f"## {env_id}", "",
+                  "| agent | final map error (m) | pose RMSE (m) | landmarks mapped | difference to best baseline (m) | verdict |",
+                  "|---|--:|--:|--:|--:|---|"]  # fmt: skip
+        for row in ranked:
+            error = _number(row["final_map_error"])
+            if row["final_map_error_ci95"] is not None:
+                error += f" ± {row['final_map_error_ci95']:.3f}"
+            difference = ""
+            if row["difference"] is not None:
+                difference = f"{row['difference']:+.3f}"
+                if row["difference_ci95_low"] is not None:
+                    difference += f" [{row['difference_ci95_low']:+.3f}, {row['difference_ci95_high']:+.3f}]"
+            lines.append(f"| {row['agent']} | {error} | {_number(row['pose_rmse'])} | "
+                         f"{_number(row['landmarks_mapped'], 1)} | {difference} | {row['verdict']} |")  # fmt: skip
+        for row in mine:
+            if not row["episodes"]:
+                lines.append(f"\n{row['agent']}: {row['verdict']}.")
+        lines += ["", f"Map error over time: `{env_id}/map_error.png`.", ""]
+    return "\n".join(lines)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--variants", default="", help="comma-separated layouts or env ids (default: every layout)")
+    parser.add_argument("--version", type=int, default=None, help="version of the layouts (default: the newest)")
+    parser.add_argument("--episodes", type=int, default=100, help="held-out episodes per agent and variant")
+    parser.add_argument("--seed", type=int, default=HELD_OUT_SEED, help="first held-out seed (default %(default)s)")
+    parser.add_argument("--agents", default=",".join([*BASELINES, *SHIPPED_POLICIES]),
+                        help="comma-separated baselines and shipped policies (default: all)")  # fmt: skip
+    parser.add_argument("--jobs", type=int, default=1, help="worker processes, one variant each")
+    parser.add_argument("--out", default="benchmark", help="output folder (default %(default)s)")
+    parser.add_argument("--quiet", action="store_true", help="no progress on stderr")
+    args = parser.parse_args(argv)
+    try:
+        names = [name.strip() for name in args.variants.split(",") if name.strip()]
+        variants = _resolve_variants(names, args.version) if names else default_variants(args.version)
+        agents = [name.strip() for name in args.agents.split(",") if name.strip()]
+        started = time.perf_counter()
+        run_benchmark(variants, agents, args.episodes, args.seed, args.out, jobs=args.jobs, verbose=not args.quiet)
+    except ValueError as error:
+        parser.error(str(error))
+    print((Path(args.out) / "leaderboard.md").read_text())
+    if not args.quiet:
+        print(f"{len(variants)} variants in {time.perf_counter() - started:.0f} s; wrote {args.out}/leaderboard.md, "
+              f".csv, .json and one folder per variant", file=sys.stderr)  # fmt: skip
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,90 @@
+"""The leaderboard command (agents.benchmark): paired statistics, outputs, verdicts."""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+
+import numpy as np
+import pytest
+import scipy.stats
+
+from agents import benchmark
+
+
+def test_paired_difference_matches_a_hand_computation():
+    values = [0.30, 0.25, 0.40, 0.35]
+    reference = [0.20, 0.30, 0.30, 0.25]
+    d = np.array([0.10, -0.05, 0.10, 0.10])
+    mean = d.mean()
+    half = scipy.stats.t.ppf(0.975, 3) * d.std(ddof=1) / 2.0
+    result = benchmark.paired_difference(values, reference)
+    assert result["n"] == 4
+    assert result["mean"] == pytest.approx(0.0625)
+    assert result["ci95_low"] == pytest.approx(mean - half)
+    assert result["ci95_high"] == pytest.approx(mean + half)
+    # by hand: s_d = 0.075, t(0.975, 3) = 3.1824, half width = 0.11934
+    assert half == pytest.approx(3.182446 * 0.075 / 2.0, rel=1e-5)
+
+
+def test_paired_difference_one_seed_and_bad_input():
+    assert benchmark.paired_difference([1.0], [0.5]) == {"mean": 0.5, "ci95_low": None, "ci95_high": None, "n": 1}
+    with pytest.raises(ValueError, match="values and reference"):
+        benchmark.paired_difference([1.0, 2.0], [1.0])
+    with pytest.raises(ValueError, match="confidence"):
+        benchmark.paired_difference([1.0, 2.0], [1.0, 1.0], confidence=1.5)
+
+
+def test_default_variants_are_every_layout_of_a_version():
+    import seif_gym
+
+    assert benchmark.default_variants() == [i for i in seif_gym.VARIANTS if i.endswith(f"-v{seif_gym.LATEST_VERSION}")]
+    assert all(i.endswith("-v0") for i in benchmark.default_variants(0))
+    with pytest.raises(ValueError, match="version"):
+        benchmark.default_variants(99)
+    assert benchmark._resolve_variants(["SeifExploreLoop", "SeifExplore-v0"], None) == [
+        "SeifExploreLoop-v1", "SeifExplore-v0"]  # fmt: skip
+    with pytest.raises(ValueError, match="variants"):
+        benchmark._resolve_variants(["NoSuchLayout"], None)
+
+
+def test_shipped_policy_fits_the_default_variant():
+    assert benchmark.policy_fits(benchmark.SHIPPED_POLICIES["ppo"], "SeifExplore-v1")
+
+
+def test_run_benchmark_writes_the_leaderboard(tmp_path, monkeypatch):
+    # a policy whose spaces do not fit is left out, and the leaderboard says so
+    monkeypatch.setattr(benchmark, "policy_fits", lambda policy, env_id: False)
+    rows = benchmark.run_benchmark(["SeifExplore-v1"], ["frontier", "random", "ppo"], episodes=2, seed=7,
+                                   out=tmp_path)  # fmt: skip
+    by_agent = {row["agent"]: row for row in rows}
+    assert set(by_agent) == {"frontier", "random", "ppo"}
+    assert by_agent["ppo"]["episodes"] == 0 and by_agent["ppo"]["verdict"].startswith("left out")
+    best = by_agent["frontier"]["best_baseline"]
+    assert best in ("frontier", "random")
+    other = "random" if best == "frontier" else "frontier"
+    assert by_agent[best]["verdict"] == "best baseline"
+    # the paired difference is the mean of the per-seed differences in the variant's results.csv
+    with (tmp_path / "SeifExplore-v1" / "results.csv").open() as handle:
+        results = list(csv.DictReader(handle))
+    errors = {(r["agent"], int(r["seed"])): float(r["final_map_error"]) for r in results}
+    assert sorted({seed for _, seed in errors}) == [7, 8]
+    expected = np.mean([errors[(other, s)] - errors[(best, s)] for s in (7, 8)])
+    assert by_agent[other]["difference"] == pytest.approx(expected)
+    assert by_agent[other]["verdict"] in ("beats", "worse", "tie (interval holds 0)")
+    saved = json.loads((tmp_path / "leaderboard.json").read_text())
+    assert saved["seeds"] == [7, 8] and len(saved["rows"]) == 3
+    with (tmp_path / "leaderboard.csv").open() as handle:
+        assert tuple(csv.DictReader(handle).fieldnames) == benchmark.LEADERBOARD_COLUMNS
+    text = (tmp_path / "leaderboard.md").read_text()
+    assert "## SeifExplore-v1" in text and "ppo: left out" in text
+    assert (tmp_path / "SeifExplore-v1" / "map_error.png").stat().st_size > 0
+    assert math.isfinite(by_agent["random"]["final_map_error"])
+
+
+def test_run_benchmark_rejects_bad_arguments(tmp_path):
+    with pytest.raises(ValueError, match="agents"):
+        benchmark.run_benchmark(["SeifExplore-v1"], ["nobody"], episodes=1, seed=0, out=tmp_path)
+    with pytest.raises(ValueError, match="episodes"):
+        benchmark.run_benchmark(["SeifExplore-v1"], ["random"], episodes=0, seed=0, out=tmp_path)

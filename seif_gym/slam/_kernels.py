@@ -730,3 +730,205 @@ def restore_rows(count, saved_rows, saved_links, saved_info, saved_index, saved_
         last_observed[i] = saved_observed[n]
     for n in range(count):
         block_position[saved_rows[n]] = -1
+
+
+# -- many SEIFs in one call (seif_gym.slam.batched) -------------------------------------------------
+@njit(cache=True)
+def velocity_linearization(theta, v, w, dt, alphas, floor, delta, jacobian, noise):
+    """:meth:`VelocityMotionModel.linearize_trusted` into ``delta``, ``jacobian``, ``noise`` (same operations)."""
+    half = 0.5 * w * dt
+    if abs(half) < 1e-4:
+        a2 = half * half
+        sinc = 1.0 - a2 / 6.0 + a2 * a2 / 120.0
+        dsinc = -half / 3.0 + half * a2 / 30.0
+    else:
+        s_half = np.sin(half)
+        c_half = np.cos(half)
+        sinc = s_half / half
+        dsinc = (half * c_half - s_half) / (half * half)
+    mid = theta + half
+    c = np.cos(mid)
+    s = np.sin(mid)
+    dx = v * dt * c * sinc
+    dy = v * dt * s * sinc
+    delta[0] = dx
+    delta[1] = dy
+    delta[2] = w * dt
+    jacobian[:, :] = 0.0
+    jacobian[0, 0] = 1.0
+    jacobian[1, 1] = 1.0
+    jacobian[2, 2] = 1.0
+    jacobian[0, 2] = -dy
+    jacobian[1, 2] = dx
+    v0 = dt * c * sinc
+    v1 = v * dt * 0.5 * dt * (-s * sinc + c * dsinc)
+    u0 = dt * s * sinc
+    u1 = v * dt * 0.5 * dt * (c * sinc + s * dsinc)
+    vv = v * v
+    ww = w * w
+    m_v = alphas[0] * vv + alphas[1] * ww
+    m_w = alphas[2] * vv + alphas[3] * ww
+    r01 = v0 * m_v * u0 + v1 * m_w * u1
+    r02 = v1 * m_w * dt
+    r12 = u1 * m_w * dt
+    noise[0, 0] = v0 * m_v * v0 + v1 * m_w * v1 + floor
+    noise[0, 1] = r01
+    noise[0, 2] = r02
+    noise[1, 0] = r01
+    noise[1, 1] = u0 * m_v * u0 + u1 * m_w * u1 + floor
+    noise[1, 2] = r12
+    noise[2, 0] = r02
+    noise[2, 1] = r12
+    noise[2, 2] = dt * m_w * dt + (alphas[4] * vv + alphas[5] * ww) * dt * dt + floor
+
+
+@njit(cache=True)
+def _wrap_float(angle):
+    """:func:`seif_gym.slam.models.wrap_angle` of a float (``[-pi, pi)``, the rounding fold included)."""
+    wrapped = (angle + np.pi) % TWO_PI - np.pi
+    if wrapped >= np.pi:
+        wrapped -= TWO_PI
+    return wrapped
+
+
+@njit(cache=True)
+def rewrap_heading(robot_info, robot_links, information_vector, mean, active):
+    """:func:`seif_gym.slam.seif._rewrap_heading`: wrap ``mu_theta``, shift ``xi`` with it."""
+    theta = mean[2]
+    if -np.pi <= theta < np.pi:
+        return
+    shift = _wrap_float(theta) - theta
+    mean[2] += shift
+    for a in range(3):
+        information_vector[a] += robot_info[a, 2] * shift
+    for p in range(active.shape[0]):
+        i = active[p]
+        information_vector[3 + 2 * i] += robot_links[i, 2, 0] * shift
+        information_vector[4 + 2 * i] += robot_links[i, 2, 1] * shift
+
+
+@njit(cache=True)
+def seif_predict_many(robot_info, robot_links, landmark_info, neighbour_index, neighbour_info, neighbour_count,
+                      information_vector, mean, block_position, active, active_count, controls, dt, alphas, floor):  # fmt: skip
+    """``SEIF.predict_trusted`` of every filter ``e`` of a batch (arrays with a leading filter axis)."""
+    delta = np.empty(3)
+    jacobian = np.empty((3, 3))
+    noise = np.empty((3, 3))
+    for e in range(controls.shape[0]):
+        velocity_linearization(mean[e, 2], controls[e, 0], controls[e, 1], dt, alphas, floor, delta, jacobian, noise)
+        act = active[e, : active_count[e]]
+        predict(robot_info[e], robot_links[e], landmark_info[e], neighbour_index[e], neighbour_info[e],
+                neighbour_count[e], information_vector[e], mean[e], block_position[e], act, delta, jacobian, noise)  # fmt: skip
+        rewrap_heading(robot_info[e], robot_links[e], information_vector[e], mean[e], act)
+
+
+@njit(cache=True)
+def seif_update_one(robot_info, robot_links, landmark_info, neighbour_index, neighbour_info, neighbour_count,
+                    information_vector, mean, block_position, active, counters, is_active, last_observed,
+                    id_to_index, ids, queue, queued, queue_state, ranges, bearings, measured, noise_info,
+                    max_active, recovery_landmarks, budget, relaxation, tolerance):  # fmt: skip
+    """``SEIF.update_trusted`` (known ids, wavefront recovery) of one filter of a batch.
+
+    ``counters = [num_landmarks, active_count, update_count, round_robin]`` (updated in place);
+    ``id_to_index[id]`` is the state order of landmark ``id`` (-1: unmapped), ``ids`` the inverse.
+    """
+    m = measured.shape[0]
+    n = counters[0]
+    indices = np.empty(m, dtype=np.int64)
+    # ids to state orders; a new landmark enters at the inverse sensor model's position (SEIF.md, sensor)
+    x = mean[0]
+    y = mean[1]
+    theta = mean[2]
+    for k in range(m):
+        index = id_to_index[measured[k]]
+        if index < 0:
+            index = n
+            n += 1
+            id_to_index[measured[k]] = index
+            ids[index] = measured[k]
+            angle = bearings[k] + theta
+            mean[3 + 2 * index] = x + ranges[k] * np.cos(angle)
+            mean[4 + 2 * index] = y + ranges[k] * np.sin(angle)
+        indices[k] = index
+    counters[0] = n
+    counters[2] += 1
+    update_count = counters[2]
+    if m > 0:
+        measurement_update(robot_info, robot_links, landmark_info, information_vector, mean,
+                           indices, ranges, bearings, noise_info)  # fmt: skip
+    count = counters[1]
+    for k in range(m):
+        i = indices[k]
+        last_observed[i] = update_count
+        if not is_active[i]:
+            active[count] = i
+            count += 1
+            is_active[i] = True
+    counters[1] = count
+    # wavefront recovery: the next passive landmarks in round robin, then the robot block and the queue
+    batch = min(recovery_landmarks, n)
+    seeds = np.empty(batch, dtype=np.int64)
+    s = 0
+    for k in range(batch):
+        j = (counters[3] + k) % n
+        if not is_active[j]:
+            seeds[s] = j
+            s += 1
+    if batch > 0:
+        counters[3] = (counters[3] + batch) % n
+    act = active[:count]
+    log_size = (s + count + budget) * (2 + neighbour_index.shape[1]) + 1
+    recover_mean_wavefront(robot_info, robot_links, landmark_info, neighbour_index, neighbour_info, neighbour_count,
+                           information_vector, mean, block_position, act, seeds[:s], queue, queued, queue_state,
+                           budget, relaxation, tolerance, np.empty(log_size, np.int8), np.empty(log_size, np.int64),
+                           np.empty((log_size, 2)), np.zeros(1, np.int64))  # fmt: skip
+    rewrap_heading(robot_info, robot_links, information_vector, mean, act)
+    # sparsification: the landmarks observed longest ago leave, never one observed in this update
+    if max_active < 0 or count <= max_active:
+        return
+    candidates = np.empty(count, dtype=np.int64)
+    c = 0
+    for p in range(count):
+        if last_observed[active[p]] != update_count:
+            candidates[c] = p
+            c += 1
+    remove_count = min(count - max_active, c)
+    if remove_count == 0:
+        return
+    order = np.argsort(last_observed[act[candidates[:c]]], kind="mergesort")
+    remove = np.zeros(count, dtype=np.bool_)
+    for r in range(remove_count):
+        remove[candidates[order[r]]] = True
+    block = np.empty(count, dtype=np.int64)
+    kept = 0
+    for p in range(count):
+        if not remove[p]:
+            block[kept] = active[p]
+            kept += 1
+    q = kept
+    for p in range(count):
+        if remove[p]:
+            block[q] = active[p]
+            q += 1
+    sparsify(robot_info, robot_links, landmark_info, neighbour_index, neighbour_info, neighbour_count,
+             information_vector, mean, block_position, block, kept)  # fmt: skip
+    for p in range(kept, count):
+        is_active[block[p]] = False
+    for p in range(kept):
+        active[p] = block[p]
+    counters[1] = kept
+
+
+@njit(cache=True)
+def seif_update_many(robot_info, robot_links, landmark_info, neighbour_index, neighbour_info, neighbour_count,
+                     information_vector, mean, block_position, active, counters, is_active, last_observed,
+                     id_to_index, ids, queue, queued, queue_state, ranges, bearings, measured, measured_count,
+                     noise_info, max_active, recovery_landmarks, budget, relaxation, tolerance):  # fmt: skip
+    """:func:`seif_update_one` for every filter ``e``, with its first ``measured_count[e]`` measurements."""
+    for e in range(measured_count.shape[0]):
+        m = measured_count[e]
+        seif_update_one(robot_info[e], robot_links[e], landmark_info[e], neighbour_index[e], neighbour_info[e],
+                        neighbour_count[e], information_vector[e], mean[e], block_position[e], active[e],
+                        counters[e], is_active[e], last_observed[e], id_to_index[e], ids[e], queue[e], queued[e],
+                        queue_state[e], ranges[e, :m], bearings[e, :m], measured[e, :m], noise_info, max_active,
+                        recovery_landmarks, budget, relaxation, tolerance)  # fmt: skip

@@ -1,0 +1,233 @@
+"""Many SEIFs advanced in one compiled call: the filter core of a native vector env.
+
+:class:`BatchedSEIF` holds ``N`` independent SEIFs (known correspondences,
+wavefront mean recovery: the configuration of the ``SeifExplore-v1`` envs) in
+arrays with a leading filter axis, and advances all of them with one call of a
+compiled kernel per step (:func:`~seif_gym.slam._kernels.seif_predict_many`,
+:func:`~seif_gym.slam._kernels.seif_update_many`): no Python object per filter
+in the step loop. Each filter computes exactly what a
+:class:`~seif_gym.slam.seif.SEIF` with the same options computes, the same
+kernels in the same order (``tests/test_batched.py`` compares every array
+after every step, bit for bit).
+
+The arrays are sized once: ``capacity`` landmarks per filter (the number of
+landmarks of the world, for an env) and as many neighbours each, so nothing
+grows in the step loop; memory is ``O(N capacity^2)`` for the links (a
+landmark can be linked to every other one), about 29 KB per filter for 30
+landmarks, 460 KB for 120.
+
+Notes
+-----
+The steps are those of ``SEIF.md``: motion update (section 1), measurement
+update (section 2), mean recovery (the wavefront of
+:func:`seif_gym.slam.seif.recover_mean_wavefront`) and sparsification
+(section 3), in the order of :class:`~seif_gym.slam.seif.SEIF`.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import scipy.linalg
+from numpy.typing import ArrayLike, NDArray
+
+from seif_gym.slam import _kernels
+from seif_gym.slam._validation import as_finite_array, as_positive_scalar
+from seif_gym.slam.base import DEFAULT_INITIAL_POSE_COV
+from seif_gym.slam.models import RangeBearingSensor, VelocityMotionModel, wrap_angle
+from seif_gym.slam.seif import SEIF
+
+__all__ = ["BatchedSEIF"]
+
+FloatArray = NDArray[np.float64]
+IntArray = NDArray[np.int64]
+
+#: positions in ``BatchedSEIF.counters``
+_LANDMARKS, _ACTIVE, _UPDATES, _ROUND_ROBIN = range(4)
+
+
+class BatchedSEIF:
+    """``num_filters`` SEIFs with one motion model, one sensor and one set of options.
+
+    Parameters
+    ----------
+    num_filters : int
+        Filters in the batch.
+    capacity : int
+        Landmarks each filter can hold (at least 1).
+    motion : VelocityMotionModel
+        Motion model of every filter.
+    sensor : RangeBearingSensor
+        Sensor model of every filter.
+    max_landmark_id : int, optional
+        Largest landmark id an update may carry (default ``capacity - 1``).
+    max_active, recovery_landmarks, recovery_budget, recovery_relaxation, recovery_tolerance
+        The :class:`~seif_gym.slam.seif.SEIF` options of the same names
+        (``mean_recovery="wavefront"``, compiled kernels).
+
+    Notes
+    -----
+    :meth:`reset` starts filter ``e`` at a pose (as ``SEIF(motion, sensor,
+    pose)`` does); :meth:`predict` and :meth:`update` advance every filter.
+    Inputs are checked once per call for the whole batch, before any filter
+    moves.
+    """
+
+    def __init__(self, num_filters: int, capacity: int, motion: VelocityMotionModel, sensor: RangeBearingSensor, *,
+                 max_landmark_id: int | None = None, max_active: int | None = 8, recovery_landmarks: int = 8,
+                 recovery_budget: int = 64, recovery_relaxation: float = 1.8,
+                 recovery_tolerance: float = 1e-4) -> None:  # fmt: skip
+        for name, value in (("num_filters", num_filters), ("capacity", capacity)):
+            if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
+                raise ValueError(f"{name} must be a positive int, got {value!r}")
+        if not isinstance(motion, VelocityMotionModel):
+            raise TypeError(f"motion must be a VelocityMotionModel, got {type(motion).__name__}")
+        if not isinstance(sensor, RangeBearingSensor):
+            raise TypeError(f"sensor must be a RangeBearingSensor, got {type(sensor).__name__}")
+        max_id = capacity - 1 if max_landmark_id is None else max_landmark_id
+        if isinstance(max_id, bool) or not isinstance(max_id, (int, np.integer)) or max_id < 0:
+            raise ValueError(f"max_landmark_id must be a non-negative int, got {max_landmark_id!r}")
+        # the SEIF checks its options; the batch takes them from a filter built with them
+        reference = SEIF(motion, sensor, np.zeros(3), max_active=max_active, recovery_landmarks=recovery_landmarks,
+                         recovery_budget=recovery_budget, recovery_relaxation=recovery_relaxation,
+                         recovery_tolerance=recovery_tolerance)  # fmt: skip
+        self.num_filters, self.capacity = int(num_filters), int(capacity)
+        self.max_landmark_id = int(max_id)
+        self.motion, self.sensor = motion, sensor
+        self.max_active = -1 if reference.max_active is None else reference.max_active
+        self.recovery_landmarks = reference.recovery_landmarks
+        self.recovery_budget = reference.recovery_budget
+        self.recovery_relaxation = reference.recovery_relaxation
+        self.recovery_tolerance = reference.recovery_tolerance
+        self._alphas = np.array(motion.alphas, dtype=np.float64)
+        self._floor = float(motion.noise_floor)
+        self._noise_info = np.array(reference._measurement_info)
+        n, c = self.num_filters, self.capacity
+        self.robot_info = np.zeros((n, 3, 3))
+        self.robot_links = np.zeros((n, c, 3, 2))
+        self.landmark_info = np.zeros((n, c, 2, 2))
+        self.neighbour_index = np.full((n, c, c), -1, dtype=np.int64)
+        self.neighbour_info = np.zeros((n, c, c, 2, 2))
+        self.neighbour_count = np.zeros((n, c), dtype=np.int64)
+        self.information_vector = np.zeros((n, 3 + 2 * c))
+        self.mean = np.zeros((n, 3 + 2 * c))
+        self.block_position = np.full((n, c), -1, dtype=np.int64)
+        self.active = np.zeros((n, c), dtype=np.int64)
+        self.is_active = np.zeros((n, c), dtype=bool)
+        self.last_observed = np.zeros((n, c), dtype=np.int64)
+        #: per filter: landmarks, active landmarks, updates so far, round-robin position
+        self.counters = np.zeros((n, 4), dtype=np.int64)
+        self.id_to_index = np.full((n, self.max_landmark_id + 1), -1, dtype=np.int64)
+        self.ids = np.zeros((n, c), dtype=np.int64)
+        self.queue = np.full((n, c), -1, dtype=np.int64)
+        self.queued = np.zeros((n, c), dtype=bool)
+        self.queue_state = np.zeros((n, 2), dtype=np.int64)
+        self._started = np.zeros(n, dtype=bool)
+
+    # -- episodes ---------------------------------------------------------------------------------
+    def reset(self, index: int, pose: ArrayLike, pose_cov: ArrayLike | None = None) -> None:
+        """Start filter ``index`` afresh at ``pose`` (covariance ``pose_cov``; the SEIF's default if omitted)."""
+        if isinstance(index, bool) or not isinstance(index, (int, np.integer)) or not 0 <= index < self.num_filters:
+            raise ValueError(f"index must be an int in [0, {self.num_filters}), got {index!r}")
+        start = as_finite_array(pose, "pose", (3,)).copy()
+        start[2] = wrap_angle(float(start[2]))
+        cov = DEFAULT_INITIAL_POSE_COV if pose_cov is None else as_finite_array(pose_cov, "pose_cov", (3, 3))
+        info = scipy.linalg.cho_solve(scipy.linalg.cho_factor(np.array(cov, dtype=np.float64)), np.eye(3))
+        e = int(index)
+        for array, fill in ((self.robot_links, 0), (self.landmark_info, 0), (self.neighbour_index, -1),
+                            (self.neighbour_info, 0), (self.neighbour_count, 0), (self.information_vector, 0),
+                            (self.mean, 0), (self.block_position, -1), (self.active, 0), (self.is_active, False),
+                            (self.last_observed, 0), (self.counters, 0), (self.id_to_index, -1), (self.ids, 0),
+                            (self.queue, -1), (self.queued, False), (self.queue_state, 0)):  # fmt: skip
+            array[e] = fill
+        self.robot_info[e] = 0.5 * (info + info.T)
+        self.mean[e, :3] = start
+        self.information_vector[e, :3] = self.robot_info[e] @ start
+        self._started[e] = True
+
+    def _check_started(self) -> None:
+        if not self._started.all():
+            missing = np.flatnonzero(~self._started).tolist()
+            raise RuntimeError(f"reset() filters {missing} before stepping the batch")
+
+    # -- steps ----------------------------------------------------------------------------------
+    def predict(self, controls: ArrayLike, dt: float) -> None:
+        """Motion update of every filter: ``controls[e] = (v, omega)`` for ``dt`` seconds."""
+        self._check_started()
+        controls = as_finite_array(controls, "controls", (self.num_filters, 2))
+        dt = as_positive_scalar(dt, "dt")
+        _kernels.seif_predict_many(
+            self.robot_info, self.robot_links, self.landmark_info, self.neighbour_index, self.neighbour_info,
+            self.neighbour_count, self.information_vector, self.mean, self.block_position, self.active,
+            np.ascontiguousarray(self.counters[:, _ACTIVE]), np.ascontiguousarray(controls), dt, self._alphas,
+            self._floor,
+        )  # fmt: skip
+
+    def update(self, ranges: ArrayLike, bearings: ArrayLike, ids: ArrayLike, counts: ArrayLike) -> None:
+        """Measurement update of every filter with its first ``counts[e]`` measurements (known ids).
+
+        Parameters
+        ----------
+        ranges, bearings : array_like, shape (N, M)
+            Measurements, padded beyond ``counts[e]`` (the padding is not read).
+        ids : array_like of int, shape (N, M)
+            Landmark ids in ``[0, max_landmark_id]``, distinct within a filter's measurements.
+        counts : array_like of int, shape (N,)
+            Measurements of each filter in this update.
+        """
+        self._check_started()
+        n = self.num_filters
+        ranges = as_finite_array(ranges, "ranges", (n, None))
+        width = ranges.shape[1]
+        bearings = as_finite_array(bearings, "bearings", (n, width))
+        ids = np.asarray(ids)
+        if ids.shape != (n, width) or not np.issubdtype(ids.dtype, np.integer):
+            raise ValueError(f"ids must be an int array of shape {(n, width)}, got {ids.dtype} {ids.shape}")
+        counts = np.asarray(counts)
+        if counts.shape != (n,) or not np.issubdtype(counts.dtype, np.integer) or counts.min() < 0 or counts.max() > width:
+            raise ValueError(f"counts must be {n} ints in [0, {width}], got {counts!r}")
+        used = np.arange(width) < counts[:, None]
+        if np.any(ranges[used] <= 0.0):
+            raise ValueError("ranges must be positive")
+        if np.any((ids[used] < 0) | (ids[used] > self.max_landmark_id)):
+            raise ValueError(f"ids must lie in [0, {self.max_landmark_id}]")
+        for e in np.flatnonzero(counts > 1).tolist():
+            if len(np.unique(ids[e, : counts[e]])) != counts[e]:
+                raise ValueError(f"ids must be distinct within one update (filter {e})")
+        new = np.zeros(n, dtype=np.int64)
+        for e in range(n):
+            row = ids[e, : counts[e]]
+            new[e] = np.count_nonzero(self.id_to_index[e, row] < 0)
+        if np.any(self.counters[:, _LANDMARKS] + new > self.capacity):
+            raise ValueError(f"an update would exceed capacity={self.capacity} landmarks")
+        _kernels.seif_update_many(
+            self.robot_info, self.robot_links, self.landmark_info, self.neighbour_index, self.neighbour_info,
+            self.neighbour_count, self.information_vector, self.mean, self.block_position, self.active,
+            self.counters, self.is_active, self.last_observed, self.id_to_index, self.ids, self.queue, self.queued,
+            self.queue_state, np.ascontiguousarray(ranges), np.ascontiguousarray(bearings),
+            np.ascontiguousarray(ids, dtype=np.int64), counts.astype(np.int64), self._noise_info, self.max_active,
+            self.recovery_landmarks, self.recovery_budget, self.recovery_relaxation, self.recovery_tolerance,
+        )  # fmt: skip
+
+    # -- read-only views -------------------------------------------------------------------------
+    @property
+    def poses(self) -> FloatArray:
+        """Pose estimates, shape (N, 3) (a copy)."""
+        return self.mean[:, :3].copy()
+
+    @property
+    def num_landmarks(self) -> IntArray:
+        """Landmarks in each filter's map, shape (N,) (a copy)."""
+        return self.counters[:, _LANDMARKS].copy()
+
+    def landmarks(self, index: int) -> FloatArray:
+        """Landmark means of filter ``index`` in state order, shape (n, 2) (a copy)."""
+        count = int(self.counters[index, _LANDMARKS])
+        return self.mean[index, 3 : 3 + 2 * count].reshape(count, 2).copy()
+
+    def landmark_ids(self, index: int) -> IntArray:
+        """Ids of filter ``index``'s landmarks in state order (a copy)."""
+        return self.ids[index, : self.counters[index, _LANDMARKS]].copy()
+
+    def active_landmarks(self, index: int) -> IntArray:
+        """Ids of the landmarks linked to filter ``index``'s robot, in the SEIF's order."""
+        return self.ids[index, self.active[index, : self.counters[index, _ACTIVE]]]

@@ -1,0 +1,93 @@
+"""BatchedSEIF: N SEIFs in one compiled call equal N SEIF objects, bit for bit."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from seif_gym.slam import SEIF
+from seif_gym.slam.batched import BatchedSEIF
+from seif_gym.slam.scenarios import FIDELITY_SCENARIOS, make_loop_run
+
+
+def _assert_same(batch: BatchedSEIF, e: int, filt: SEIF, step: int) -> None:
+    store = filt._store
+    n = store.num_landmarks
+    where = f"filter {e}, step {step}"
+    assert batch.counters[e, 0] == n, where
+    dim = 3 + 2 * n
+    np.testing.assert_array_equal(batch.mean[e, :dim], store.mean[:dim], err_msg=where)
+    np.testing.assert_array_equal(batch.information_vector[e, :dim], store.information_vector[:dim], err_msg=where)
+    np.testing.assert_array_equal(batch.robot_info[e], store.robot_info, err_msg=where)
+    np.testing.assert_array_equal(batch.robot_links[e, :n], store.robot_links[:n], err_msg=where)
+    np.testing.assert_array_equal(batch.landmark_info[e, :n], store.landmark_info[:n], err_msg=where)
+    np.testing.assert_array_equal(batch.neighbour_count[e, :n], store.neighbour_count[:n], err_msg=where)
+    for i in range(n):
+        count = store.neighbour_count[i]
+        np.testing.assert_array_equal(batch.neighbour_index[e, i, :count], store.neighbour_index[i, :count], err_msg=where)
+        np.testing.assert_array_equal(batch.neighbour_info[e, i, :count], store.neighbour_info[i, :count], err_msg=where)
+    np.testing.assert_array_equal(batch.active_landmarks(e), filt.active_landmarks, err_msg=where)
+    np.testing.assert_array_equal(batch.landmark_ids(e), filt.landmark_ids, err_msg=where)
+    np.testing.assert_array_equal(batch.last_observed[e, :n], filt._last_observed[:n], err_msg=where)
+    assert batch.counters[e, 2] == filt._update_count and batch.counters[e, 3] == filt._round_robin, where
+    np.testing.assert_array_equal(batch.queue_state[e, 1], filt._queue.state[1], err_msg=where)
+
+
+@pytest.mark.parametrize("scenario, max_active", [("circle", 8), ("rectangle-narrow", 4), ("figure8-sparse", 16)])
+def test_batched_seif_equals_seif_objects_bit_for_bit(scenario, max_active):
+    seeds = [0, 1, 2]
+    runs = [make_loop_run(FIDELITY_SCENARIOS[scenario], seed) for seed in seeds]
+    motion, sensor = runs[0][0], runs[0][1]
+    runs = [run for _, _, run in runs]
+    capacity = max(len(run.landmarks) for run in runs)
+    batch = BatchedSEIF(len(runs), capacity, motion, sensor, max_active=max_active)
+    filters = [SEIF(motion, sensor, run.initial_pose, max_active=max_active) for run in runs]
+    for e, run in enumerate(runs):
+        batch.reset(e, run.initial_pose)
+        _assert_same(batch, e, filters[e], -1)
+    steps = min(run.steps for run in runs)
+    width = max(len(run.ids[t]) for run in runs for t in range(steps))
+    for t in range(steps):
+        controls = np.array([run.controls[t] for run in runs])
+        batch.predict(controls, runs[0].dt)
+        ranges = np.ones((len(runs), width))
+        bearings = np.zeros((len(runs), width))
+        ids = np.zeros((len(runs), width), dtype=np.int64)
+        counts = np.zeros(len(runs), dtype=np.int64)
+        for e, (run, filt) in enumerate(zip(runs, filters)):
+            filt.predict(run.controls[t], run.dt)
+            m = len(run.ids[t])
+            ranges[e, :m], bearings[e, :m], ids[e, :m], counts[e] = run.ranges[t], run.bearings[t], run.ids[t], m
+            filt.update(run.ranges[t], run.bearings[t], run.ids[t])
+        batch.update(ranges, bearings, ids, counts)
+        for e, filt in enumerate(filters):
+            _assert_same(batch, e, filt, t)
+
+
+def test_batched_seif_checks_its_inputs_before_any_filter_moves():
+    motion, sensor, run = make_loop_run(FIDELITY_SCENARIOS["circle"], 0)
+    batch = BatchedSEIF(2, 10, motion, sensor)
+    with pytest.raises(RuntimeError, match="reset"):
+        batch.predict(np.zeros((2, 2)), 0.25)
+    batch.reset(0, run.initial_pose)
+    batch.reset(1, run.initial_pose)
+    before = batch.mean.copy()
+    with pytest.raises(ValueError, match="controls"):
+        batch.predict(np.array([[0.1, 0.0], [np.nan, 0.0]]), 0.25)
+    with pytest.raises(ValueError, match="dt"):
+        batch.predict(np.zeros((2, 2)), -1.0)
+    with pytest.raises(ValueError, match="ids"):
+        batch.update(np.ones((2, 2)), np.zeros((2, 2)), np.array([[0, 99], [0, 1]]), np.array([2, 2]))
+    with pytest.raises(ValueError, match="distinct"):
+        batch.update(np.ones((2, 2)), np.zeros((2, 2)), np.array([[3, 3], [0, 1]]), np.array([2, 2]))
+    with pytest.raises(ValueError, match="ranges"):
+        batch.update(np.array([[1.0, -1.0], [1.0, 1.0]]), np.zeros((2, 2)), np.array([[0, 1], [0, 1]]), np.array([2, 2]))
+    with pytest.raises(ValueError, match="counts"):
+        batch.update(np.ones((2, 2)), np.zeros((2, 2)), np.array([[0, 1], [0, 1]]), np.array([3, 0]))
+    np.testing.assert_array_equal(batch.mean, before)
+    with pytest.raises(ValueError, match="num_filters"):
+        BatchedSEIF(0, 10, motion, sensor)
+    with pytest.raises(TypeError, match="motion"):
+        BatchedSEIF(1, 10, sensor, sensor)
+    with pytest.raises(ValueError, match="index"):
+        batch.reset(5, run.initial_pose)

@@ -11,11 +11,12 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 from numpy.typing import NDArray
 
-from seif_gym.slam.models import RangeBearingSensor, VelocityMotionModel, wrap_angle
+from seif_gym.slam.models import RangeBearingSensor, VelocityMotionModel, _visible_measurements, wrap_angle
 
-__all__ = ["LAYOUTS", "WorldConfig", "World", "make_landmarks"]
+__all__ = ["LAYOUTS", "WorldConfig", "World", "BatchedWorld", "make_landmarks"]
 
 FloatArray = NDArray[np.float64]
 
@@ -136,3 +137,169 @@ class World:
     def measure(self, rng: np.random.Generator) -> tuple[FloatArray, FloatArray, NDArray[np.int64]]:
         """Noisy ``(ranges, bearings, ids)`` of the visible landmarks."""
         return self.sensor.sample_trusted(self.pose, self.landmarks, rng)
+
+
+# -- many worlds in one call (the native vector env) -------------------------------------------------
+@njit(cache=True)
+def _displacement(theta, v, w, dt):
+    """``VelocityMotionModel._displacement`` (same operations)."""
+    half = 0.5 * w * dt
+    if abs(half) < 1e-4:
+        a2 = half * half
+        sinc = 1.0 - a2 / 6.0 + a2 * a2 / 120.0
+    else:
+        sinc = np.sin(half) / half
+    mid = theta + half
+    return v * dt * np.cos(mid) * sinc, v * dt * np.sin(mid) * sinc, w * dt
+
+
+@njit(cache=True)
+def _wrap(angle):
+    """``wrap_angle`` of a float."""
+    wrapped = (angle + np.pi) % (2.0 * np.pi) - np.pi
+    if wrapped >= np.pi:
+        wrapped -= 2.0 * np.pi
+    return wrapped
+
+
+@njit(cache=True)
+def _step_worlds(poses, controls, dt, alphas, half_size, noise, cursor, executed, wall):
+    """:meth:`World.step` of every world ``e``, its motion noise read from ``noise[e, cursor[e]:]``."""
+    for e in range(poses.shape[0]):
+        x, y, theta = poses[e, 0], poses[e, 1], poses[e, 2]
+        v, w = controls[e, 0], controls[e, 1]
+        dx, dy, _ = _displacement(theta, v, w, dt)
+        px, py = x + dx, y + dy
+        hit = not (-half_size <= px <= half_size and -half_size <= py <= half_size)
+        if hit:
+            v = 0.0
+        executed[e, 0], executed[e, 1] = v, w
+        wall[e] = hit
+        c = cursor[e]
+        vv, ww = v * v, w * w
+        v_hat = v + np.sqrt(alphas[0] * vv + alphas[1] * ww) * noise[e, c]
+        w_hat = w + np.sqrt(alphas[2] * vv + alphas[3] * ww) * noise[e, c + 1]
+        gamma = np.sqrt(alphas[4] * vv + alphas[5] * ww) * noise[e, c + 2]
+        cursor[e] = c + 3
+        dx, dy, dth = _displacement(theta, v_hat, w_hat, dt)
+        heading = _wrap(theta + dth + gamma * dt)
+        poses[e, 0] = min(max(x + dx, -half_size), half_size)
+        poses[e, 1] = min(max(y + dy, -half_size), half_size)
+        poses[e, 2] = _wrap(heading)
+
+
+@njit(cache=True)
+def _measure_worlds(poses, landmarks, max_range, half_fov, sigma_range, sigma_bearing, noise, cursor,
+                    ranges, bearings, ids, counts):  # fmt: skip
+    """:meth:`World.measure` of every world, its sensor noise read from ``noise[e, cursor[e]:]``."""
+    for e in range(poses.shape[0]):
+        visible, z = _visible_measurements(poses[e, 0], poses[e, 1], poses[e, 2], landmarks[e], max_range, half_fov)
+        c = cursor[e]
+        m = visible.shape[0]
+        for k in range(m):
+            ranges[e, k] = abs(z[k, 0] + noise[e, c + 2 * k] * sigma_range)
+            bearings[e, k] = (z[k, 1] + noise[e, c + 2 * k + 1] * sigma_bearing + np.pi) % (2.0 * np.pi) - np.pi
+            ids[e, k] = visible[k]
+        counts[e] = m
+        cursor[e] = c + 2 * m
+
+
+class _NormalStream:
+    """Standard normals of one generator per world, drawn ahead into a buffer.
+
+    A generator's normals do not depend on how the draws are chunked, so
+    reading them from a buffer gives exactly what drawing them one call at a
+    time gives; only the refill (once every ``size / need`` steps) calls the
+    generators, one Python call per world that runs low.
+    """
+
+    def __init__(self, count: int, size: int) -> None:
+        self.values = np.zeros((count, size))
+        self.cursor = np.full(count, size, dtype=np.int64)
+        self.generators: list[np.random.Generator | None] = [None] * count
+
+    def reset(self, index: int, rng: np.random.Generator) -> None:
+        self.generators[index] = rng
+        self.values[index] = rng.standard_normal(self.values.shape[1])
+        self.cursor[index] = 0
+
+    def reserve(self, need: int) -> None:
+        """Make sure every world has ``need`` unread normals."""
+        size = self.values.shape[1]
+        for e in np.flatnonzero(self.cursor + need > size).tolist():
+            rng = self.generators[e]
+            if rng is None:
+                raise RuntimeError(f"world {e} was not reset")
+            left = size - int(self.cursor[e])
+            self.values[e, :left] = self.values[e, size - left :]
+            self.values[e, left:] = rng.standard_normal(size - left)
+            self.cursor[e] = 0
+
+
+class BatchedWorld:
+    """:class:`World` times ``num_worlds``, stepped and measured by compiled kernels.
+
+    Every world ``e`` computes exactly what a :class:`World` with the same
+    landmarks, start and generators computes (``tests/test_world.py``). The
+    motion and sensor noise come from each world's own generators, drawn
+    ahead (:class:`_NormalStream`).
+
+    Parameters
+    ----------
+    num_worlds : int
+        Worlds in the batch.
+    config : WorldConfig
+        Arena and landmark count of every world.
+    motion : VelocityMotionModel
+        True motion model.
+    sensor : RangeBearingSensor
+        True sensor.
+    buffer : int
+        Normals drawn ahead per world and stream.
+    """
+
+    def __init__(self, num_worlds: int, config: WorldConfig, motion: VelocityMotionModel, sensor: RangeBearingSensor,
+                 buffer: int = 4096) -> None:  # fmt: skip
+        if isinstance(num_worlds, bool) or not isinstance(num_worlds, (int, np.integer)) or num_worlds < 1:
+            raise ValueError(f"num_worlds must be a positive int, got {num_worlds!r}")
+        if isinstance(buffer, bool) or not isinstance(buffer, (int, np.integer)) or buffer < 2 * config.num_landmarks + 3:
+            raise ValueError(f"buffer must be an int of at least {2 * config.num_landmarks + 3}, got {buffer!r}")
+        self.config, self.motion, self.sensor = config, motion, sensor
+        n, m = int(num_worlds), config.num_landmarks
+        self.num_worlds = n
+        self.poses = np.zeros((n, 3))
+        self.landmarks = np.zeros((n, m, 2))
+        self._alphas = np.array(motion.alphas, dtype=np.float64)
+        self._motion_noise = _NormalStream(n, int(buffer))
+        self._sensor_noise = _NormalStream(n, int(buffer))
+        self.executed = np.zeros((n, 2))
+        self.wall = np.zeros(n, dtype=bool)
+        self.ranges = np.zeros((n, m))
+        self.bearings = np.zeros((n, m))
+        self.ids = np.zeros((n, m), dtype=np.int64)
+        self.counts = np.zeros(n, dtype=np.int64)
+
+    def reset(self, index: int, landmarks: FloatArray, pose: FloatArray, motion_rng: np.random.Generator,
+              sensor_rng: np.random.Generator) -> None:  # fmt: skip
+        """Start world ``index`` with these landmarks, true pose and noise generators."""
+        self.landmarks[index] = landmarks
+        self.poses[index] = pose
+        self._motion_noise.reset(index, motion_rng)
+        self._sensor_noise.reset(index, sensor_rng)
+
+    def step(self, controls: FloatArray, dt: float) -> tuple[FloatArray, NDArray[np.bool_]]:
+        """Move every robot (valid ``controls``, shape (N, 2)); the executed controls and the wall contacts."""
+        self._motion_noise.reserve(3)
+        noise = self._motion_noise
+        _step_worlds(self.poses, np.ascontiguousarray(controls, dtype=np.float64), float(dt), self._alphas,
+                     self.config.half_size, noise.values, noise.cursor, self.executed, self.wall)  # fmt: skip
+        return self.executed, self.wall
+
+    def measure(self) -> tuple[FloatArray, FloatArray, NDArray[np.int64], NDArray[np.int64]]:
+        """Noisy measurements of every world: ``ranges, bearings, ids`` (N, L), valid up to ``counts`` (N,)."""
+        self._sensor_noise.reserve(2 * self.config.num_landmarks)
+        noise, sensor = self._sensor_noise, self.sensor
+        _measure_worlds(self.poses, self.landmarks, sensor.max_range, 0.5 * sensor.fov, sensor.sigma_range,
+                        sensor.sigma_bearing, noise.values, noise.cursor, self.ranges, self.bearings, self.ids,
+                        self.counts)  # fmt: skip
+        return self.ranges, self.bearings, self.ids, self.counts

@@ -271,3 +271,40 @@ def test_belief_map_landmark_channel_is_255_times_the_confidence(std_scale):
     assert np.count_nonzero(channel) == len(landmarks)
     if std_scale == 1e-4:
         assert np.all(expected == 1)  # tiny confidences still mark the cell
+
+
+def test_batched_world_equals_worlds_bit_for_bit():
+    from seif_gym.world import BatchedWorld
+
+    config = WorldConfig(arena_size=12.0, num_landmarks=25)
+    motion = VelocityMotionModel(alphas=(0.01, 0.001, 0.001, 0.01, 0.0005, 0.0005))
+    sensor = RangeBearingSensor(sigma_range=0.1, sigma_bearing=0.035, max_range=5.0, fov=np.pi)
+    n = 4
+    batch = BatchedWorld(n, config, motion, sensor, buffer=60)  # small buffer: refills happen often
+    worlds, rngs = [], []
+    for e in range(n):
+        rng = np.random.default_rng(100 + e)
+        landmarks = make_landmarks(config, rng)
+        start = np.array([*rng.uniform(-3, 3, 2), rng.uniform(-np.pi, np.pi)])
+        motion_rng, sensor_rng = np.random.default_rng(e), np.random.default_rng(50 + e)
+        worlds.append(World(config, motion, sensor, landmarks, start))
+        rngs.append((motion_rng, sensor_rng))
+        batch.reset(e, landmarks, start, *(np.random.default_rng(e), np.random.default_rng(50 + e)))
+    actions = np.random.default_rng(7)
+    walls = 0
+    for t in range(600):
+        controls = actions.uniform([-0.2, -1.0], [1.0, 1.0], size=(n, 2))
+        executed, wall = batch.step(controls, 0.25)
+        ranges, bearings, ids, counts = batch.measure()
+        for e, world in enumerate(worlds):
+            expected_control, expected_wall = world.step(controls[e], 0.25, rngs[e][0])
+            r, b, i = world.measure(rngs[e][1])
+            np.testing.assert_array_equal(batch.poses[e], world.pose)
+            np.testing.assert_array_equal(executed[e], expected_control)
+            assert wall[e] == expected_wall
+            assert counts[e] == len(i)
+            np.testing.assert_array_equal(ranges[e, : counts[e]], r)
+            np.testing.assert_array_equal(bearings[e, : counts[e]], b)
+            np.testing.assert_array_equal(ids[e, : counts[e]], i)
+            walls += expected_wall
+    assert walls > 10  # the wall branch was exercised

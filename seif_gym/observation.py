@@ -16,6 +16,7 @@ from gymnasium import spaces
 from numba import njit
 from numpy.typing import NDArray
 
+from seif_gym.slam._kernels import blanket_covariances, blanket_nodes, conditional_std
 from seif_gym.slam.base import SlamFilter
 from seif_gym.slam.models import RangeBearingSensor
 
@@ -255,3 +256,50 @@ class BeliefEncoder:
             x, y, theta, config.map_size, config.map_extent, landmarks, confidence,
         )  # fmt: skip
         return {"pose": pose_obs, "landmarks": landmark_obs, "landmarks_mask": mask, "belief_map": belief_map}
+
+
+@njit(cache=True)
+def encode_many(coverage, resolution, half_arena, max_range, half_fov, map_size, map_extent, nearest_landmarks,
+                diagonal, std_scale, robot_info, robot_links, landmark_info, neighbour_index, neighbour_info,
+                neighbour_count, information_vector, mean, block_position, active, counters,
+                pose_out, landmarks_out, mask_out, map_out, pose_covariance_out):  # fmt: skip
+    """:meth:`BeliefEncoder.sweep` then :meth:`BeliefEncoder.encode` of a batch of SEIFs (``BatchedSEIF`` arrays).
+
+    Writes each filter's observation into ``pose_out`` (N, 7), ``landmarks_out`` (N, 4K),
+    ``mask_out`` (N, K), ``map_out`` (N, 3, H, W) and the Markov-blanket pose covariance
+    it used into ``pose_covariance_out`` (N, 3, 3), with the same kernels and operations
+    as the single encoder.
+    """
+    for e in range(mean.shape[0]):
+        x = mean[e, 0]
+        y = mean[e, 1]
+        theta = mean[e, 2]
+        _sweep(coverage[e], resolution, half_arena, x, y, theta, max_range, half_fov)
+        n = counters[e, 0]
+        landmarks = mean[e, 3 : 3 + 2 * n].reshape(n, 2)
+        nearest = _nearest(x, y, landmarks, nearest_landmarks)
+        act = active[e, : counters[e, 1]]
+        nodes = blanket_nodes(act, nearest, block_position[e])
+        pose_cov, covs = blanket_covariances(robot_info[e], robot_links[e], landmark_info[e], neighbour_index[e],
+                                             neighbour_info[e], neighbour_count[e], information_vector[e], mean[e],
+                                             block_position[e], nodes, nearest)  # fmt: skip
+        pose_covariance_out[e] = pose_cov
+        pose_out[e, 0] = x / half_arena
+        pose_out[e, 1] = y / half_arena
+        pose_out[e, 2] = np.cos(theta)
+        pose_out[e, 3] = np.sin(theta)
+        pose_out[e, 4] = np.sqrt(max(pose_cov[0, 0], 0.0)) / std_scale
+        pose_out[e, 5] = np.sqrt(max(pose_cov[1, 1], 0.0)) / std_scale
+        pose_out[e, 6] = np.sqrt(max(pose_cov[2, 2], 0.0)) / np.pi
+        for a in range(7):
+            pose_out[e, a] = min(max(pose_out[e, a], np.float32(-1.0)), np.float32(1.0))
+        features, mask = _landmark_features(x, y, theta, landmarks, nearest, covs, nearest_landmarks, diagonal,
+                                            std_scale, CHI2_2DOF_95)  # fmt: skip
+        landmarks_out[e] = features
+        mask_out[e] = mask
+        std = conditional_std(landmark_info[e], n)
+        confidence = np.empty(n)
+        for i in range(n):
+            confidence[i] = 1.0 / (1.0 + std[i] / std_scale)
+        map_out[e] = _belief_map(coverage[e], resolution, half_arena, x, y, theta, map_size, map_extent, landmarks,
+                                 confidence)  # fmt: skip

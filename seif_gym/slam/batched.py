@@ -144,6 +144,55 @@ class BatchedSEIF:
         self.information_vector[e, :3] = self.robot_info[e] @ start
         self._started[e] = True
 
+    def load(self, index: int, filt: SEIF) -> None:
+        """Make filter ``index`` a copy of ``filt`` (a SEIF with this batch's options and known ids).
+
+        The recovery queue keeps its order (its ring may be laid out differently: a FIFO's order
+        is all the recovery reads).
+        """
+        if not isinstance(filt, SEIF) or type(filt) is not SEIF:
+            raise TypeError(f"filt must be a SEIF, got {type(filt).__name__}")
+        options = filt.options
+        if (options["mean_recovery"] != "wavefront" or options["implementation"] != "compiled"
+                or (-1 if filt.max_active is None else filt.max_active) != self.max_active
+                or filt.recovery_landmarks != self.recovery_landmarks or filt.recovery_budget != self.recovery_budget
+                or filt.recovery_relaxation != self.recovery_relaxation
+                or filt.recovery_tolerance != self.recovery_tolerance):  # fmt: skip
+            raise ValueError(f"filt's options {options} differ from the batch's")
+        store = filt._store
+        n = store.num_landmarks
+        if n > self.capacity:
+            raise ValueError(f"filt has {n} landmarks, more than capacity={self.capacity}")
+        ids = filt.landmark_ids
+        if n and (ids.min() < 0 or ids.max() > self.max_landmark_id):
+            raise ValueError(f"filt's landmark ids must lie in [0, {self.max_landmark_id}]")
+        self.reset(index, np.zeros(3))
+        e = int(index)
+        degree = store.neighbour_index.shape[1]
+        if degree > self.capacity:
+            if n and store.neighbour_count[:n].max() > self.capacity:
+                raise ValueError("filt has more neighbours per landmark than the batch can hold")
+            degree = self.capacity
+        self.robot_info[e] = store.robot_info
+        self.robot_links[e, :n] = store.robot_links[:n]
+        self.landmark_info[e, :n] = store.landmark_info[:n]
+        self.neighbour_index[e, :n, :degree] = store.neighbour_index[:n, :degree]
+        self.neighbour_info[e, :n, :degree] = store.neighbour_info[:n, :degree]
+        self.neighbour_count[e, :n] = store.neighbour_count[:n]
+        self.information_vector[e, : 3 + 2 * n] = store.information_vector[: 3 + 2 * n]
+        self.mean[e, : 3 + 2 * n] = store.mean[: 3 + 2 * n]
+        active = filt._active
+        self.active[e, : len(active)] = active
+        self.is_active[e, :n] = filt._is_active[:n]
+        self.last_observed[e, :n] = filt._last_observed[:n]
+        self.counters[e] = (n, len(active), filt._update_count, filt._round_robin)
+        self.ids[e, :n] = ids
+        self.id_to_index[e, ids] = np.arange(n)
+        ordered = filt._queue.ordered()
+        self.queue[e, : len(ordered)] = ordered
+        self.queued[e, :n] = filt._queue.queued[:n]
+        self.queue_state[e] = (0, len(ordered))
+
     def _check_started(self) -> None:
         if not self._started.all():
             missing = np.flatnonzero(~self._started).tolist()

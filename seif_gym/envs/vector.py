@@ -1,0 +1,337 @@
+"""``SeifExploreVectorEnv``: N ``SeifExplore`` envs advanced by compiled kernels over arrays with an env axis.
+
+A step of the single env (:class:`~seif_gym.envs.explore.SeifExploreEnv`)
+spends most of its ~100 µs in some two hundred small Python calls around a
+~30 µs filter. Here one ``step`` of N envs is a handful of compiled calls, each
+looping over the envs: the worlds (:class:`~seif_gym.world.BatchedWorld`), the
+SEIFs (:class:`~seif_gym.slam.batched.BatchedSEIF`), the observations
+(:func:`~seif_gym.observation.encode_many`) and the rewards and infos
+(:func:`_score_many`). No per-env Python object takes part in a step; an
+episode's start (``reset``, and autoreset) runs the single env's own reset
+and loads its state into the arrays, so the two cannot drift apart.
+
+Supported in this compiled form: ``filter="seif"`` (wavefront recovery),
+``data_association="known"``, ``reward="map_error"`` (the defaults of every
+registered ``-v1`` id). Any other configuration runs as a
+:class:`gymnasium.vector.SyncVectorEnv` of single envs (``backend ==
+"sync"``), with the same interface.
+
+Equal to N single envs: with the same seeds, every observation, reward,
+termination, truncation and info equals what a ``SyncVectorEnv`` of
+``gym.make`` envs (time limit included) returns, bit for bit, in both
+autoreset modes; one exception: ``info["pose_nees"]`` on maps of more than
+:attr:`SEIF.DENSE_MARGINALS_UP_TO` landmarks, where the single env factorises
+Ω sparsely and this env densely (equal to about 1e-12 relative).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+from gymnasium.vector import AutoresetMode, SyncVectorEnv, VectorEnv
+from gymnasium.vector.utils import batch_space, concatenate, create_empty_array
+from numba import njit
+
+from seif_gym.envs.explore import Measurements, SeifExploreEnv, _map_error, _nees
+from seif_gym.observation import encode_many
+from seif_gym.slam import _kernels
+from seif_gym.slam.batched import BatchedSEIF
+from seif_gym.slam.seif import SEIF
+from seif_gym.world import BatchedWorld
+
+__all__ = ["SeifExploreVectorEnv"]
+
+
+@njit(cache=True)
+def _score_many(true_poses, truth, mean, counters, ids, robot_info, robot_links, landmark_info, neighbour_index,
+                neighbour_info, neighbour_count, information_vector, block_position, blanket_covariances, d_cap,
+                previous_error, wall, wall_penalty, divergence_threshold, reward, map_error, pose_error, diverged,
+                pose_nees, pose_nees_blanket):  # fmt: skip
+    """Reward, map error, pose error, divergence and the two pose NEES of every env (``SeifExploreEnv.step``)."""
+    error = np.empty(3)
+    for e in range(mean.shape[0]):
+        n = counters[e, 0]
+        estimates = mean[e, 3 : 3 + 2 * n].reshape(n, 2)
+        current = _map_error(estimates, truth[e], ids[e, :n], d_cap)
+        reward[e] = previous_error[e] - current
+        if wall[e]:
+            reward[e] -= wall_penalty
+        map_error[e] = current
+        previous_error[e] = current
+        dx = true_poses[e, 0] - mean[e, 0]
+        dy = true_poses[e, 1] - mean[e, 1]
+        pose_error[e] = np.hypot(dx, dy)
+        diverged[e] = pose_error[e] > divergence_threshold
+        error[0] = dx
+        error[1] = dy
+        heading = true_poses[e, 2] - mean[e, 2]
+        wrapped = (heading + np.pi) % (2.0 * np.pi) - np.pi
+        if wrapped >= np.pi:
+            wrapped -= 2.0 * np.pi
+        error[2] = wrapped
+        cov = _kernels.exact_marginal(robot_info[e], robot_links[e], landmark_info[e], neighbour_index[e],
+                                      neighbour_info[e], neighbour_count[e], information_vector[e], mean[e],
+                                      block_position[e], n, np.arange(3))  # fmt: skip
+        pose_nees[e] = _nees(error, 0.5 * (cov + cov.T))
+        pose_nees_blanket[e] = _nees(error, blanket_covariances[e])
+
+
+class SeifExploreVectorEnv(VectorEnv):
+    """N ``SeifExplore`` envs in one: ``gym.make_vec(id, num_envs=N)`` builds it for every registered id.
+
+    Parameters
+    ----------
+    num_envs : int
+        Number of sub-envs.
+    max_episode_steps : int or None
+        Time limit of each sub-env's episodes (the registered one when made by ``gym.make_vec``).
+    autoreset_mode : AutoresetMode or str
+        ``"NextStep"`` (default: the step after an episode ends resets that sub-env) or ``"SameStep"``
+        (the step that ends it returns the next episode's first observation, the last one in
+        ``info["final_obs"]``).
+    render_mode : {"rgb_array"} or None
+        ``render()`` draws sub-env 0.
+    **kwargs
+        The keyword arguments of :class:`~seif_gym.envs.explore.SeifExploreEnv`.
+    """
+
+    metadata = {"render_modes": ["rgb_array"], "autoreset_mode": AutoresetMode.NEXT_STEP}
+
+    def __init__(self, num_envs: int = 1, *, max_episode_steps: int | None = None,
+                 autoreset_mode: AutoresetMode | str = AutoresetMode.NEXT_STEP, render_mode: str | None = None,
+                 **kwargs: Any) -> None:  # fmt: skip
+        if isinstance(num_envs, bool) or not isinstance(num_envs, (int, np.integer)) or num_envs < 1:
+            raise ValueError(f"num_envs must be a positive int, got {num_envs!r}")
+        if max_episode_steps is not None and (isinstance(max_episode_steps, bool) or
+                                              not isinstance(max_episode_steps, (int, np.integer)) or
+                                              max_episode_steps < 1):  # fmt: skip
+            raise ValueError(f"max_episode_steps must be a positive int or None, got {max_episode_steps!r}")
+        try:
+            mode = AutoresetMode(autoreset_mode)
+        except ValueError as error:
+            choices = [m.value for m in (AutoresetMode.NEXT_STEP, AutoresetMode.SAME_STEP)]
+            raise ValueError(f"autoreset_mode must be one of {choices}, got {autoreset_mode!r}") from error
+        if mode not in (AutoresetMode.NEXT_STEP, AutoresetMode.SAME_STEP):
+            raise ValueError(f"autoreset_mode must be NextStep or SameStep, got {mode.value!r}")
+        if render_mode not in (None, "rgb_array"):
+            raise ValueError(f"render_mode must be 'rgb_array' or None, got {render_mode!r}")
+        self.num_envs = int(num_envs)
+        self.max_episode_steps = None if max_episode_steps is None else int(max_episode_steps)
+        self.autoreset_mode = mode
+        self.metadata = {**self.metadata, "autoreset_mode": mode}
+        self.render_mode = render_mode
+        # the single envs: the configuration, the spaces, and every episode's start
+        self.envs = [SeifExploreEnv(render_mode=render_mode if e == 0 else None, **kwargs) for e in range(self.num_envs)]
+        template = self.envs[0]
+        config = template.filter_config
+        compiled = (config.filter == "seif" and config.data_association == "known" and config.mean_recovery == "wavefront"
+                    and template.reward_config.reward == "map_error" and not template.measure_time)  # fmt: skip
+        #: ``"compiled"`` (batched kernels) or ``"sync"`` (a SyncVectorEnv of single envs, for other configurations)
+        self.backend = "compiled" if compiled else "sync"
+        self.single_observation_space = template.observation_space
+        self.single_action_space = template.action_space
+        self.observation_space = batch_space(self.single_observation_space, self.num_envs)
+        self.action_space = batch_space(self.single_action_space, self.num_envs)
+        if not compiled:
+            limited = [gym.wrappers.TimeLimit(env, self.max_episode_steps) if self.max_episode_steps else env
+                       for env in self.envs]  # fmt: skip
+            self._sync = SyncVectorEnv([lambda env=env: env for env in limited], autoreset_mode=mode)
+            return
+        self._sync = None
+        n = self.num_envs
+        self._world = BatchedWorld(n, template.world_config, template.motion, template.sensor)
+        self._filters = BatchedSEIF(n, template.world_config.num_landmarks, template.motion, template.sensor,
+                                    max_active=config.max_active)  # fmt: skip
+        cells = template.encoder.coverage.shape[0]
+        self._coverage = np.zeros((n, cells, cells), dtype=np.uint8)
+        self._truth = np.zeros((n, template.world_config.num_landmarks, 2))
+        self._observations = create_empty_array(self.single_observation_space, n)
+        self._blanket_covariances = np.zeros((n, 3, 3))
+        self._previous_error = np.zeros(n)
+        self._elapsed = np.zeros(n, dtype=np.int64)
+        self._autoreset = np.zeros(n, dtype=bool)
+        self._scale = template._action_scale
+        self._info_template: dict[str, Any] | None = None
+
+    # -- episodes ---------------------------------------------------------------------------------
+    def _load(self, e: int) -> None:
+        """Copy sub-env ``e``'s state after its reset into the arrays."""
+        env = self.envs[e]
+        world, filt = env.world, env.filter
+        assert isinstance(filt, SEIF) and world is not None
+        self._world.reset(e, world.landmarks, world.pose, env._motion_rng, env._sensor_rng)
+        self._truth[e] = world.landmarks
+        self._filters.load(e, filt)
+        self._coverage[e] = env.encoder.coverage
+        self._previous_error[e] = env._map_error
+        self._elapsed[e] = 0
+
+    def reset(self, *, seed: int | list[int | None] | None = None, options: dict[str, Any] | None = None):
+        """Reset every sub-env (``seed``: an int seeds sub-env ``e`` with ``seed + e``; or a list)."""
+        if self._sync is not None:
+            return self._sync.reset(seed=seed, options=options)
+        if seed is None:
+            seeds: list[int | None] = [None] * self.num_envs
+        elif isinstance(seed, (int, np.integer)) and not isinstance(seed, bool):
+            seeds = [int(seed) + e for e in range(self.num_envs)]
+        elif isinstance(seed, (list, tuple)) and len(seed) == self.num_envs:
+            seeds = list(seed)
+        else:
+            raise ValueError(f"seed must be an int, None or a list of {self.num_envs} seeds, got {seed!r}")
+        observations, infos = [], {}
+        for e, env_seed in enumerate(seeds):
+            observation, info = self.envs[e].reset(seed=env_seed, options=options)
+            self._load(e)
+            observations.append(observation)
+            infos = self._add_info(infos, info, e)
+        self._observations = concatenate(self.single_observation_space, observations, self._observations)
+        self._autoreset[:] = False
+        return self._copy_observations(), infos
+
+    def _copy_observations(self) -> dict[str, np.ndarray]:
+        return {key: value.copy() for key, value in self._observations.items()}
+
+    # -- steps ----------------------------------------------------------------------------------
+    def step(self, actions):
+        """Advance every sub-env by one step (``actions``: shape (N, 2), finite)."""
+        if self._sync is not None:
+            return self._sync.step(actions)
+        actions = np.asarray(actions, dtype=np.float64)
+        if actions.shape != (self.num_envs, 2):
+            raise ValueError(f"actions must have shape {(self.num_envs, 2)}, got {actions.shape}")
+        if not np.all(np.isfinite(actions)):
+            raise ValueError(f"actions must be finite, got non-finite rows {np.flatnonzero(~np.isfinite(actions).all(1)).tolist()}")
+        n = self.num_envs
+        template = self.envs[0]
+        dt = template.robot_config.dt
+        controls = np.clip(actions, -1.0, 1.0) * self._scale
+        world, filters = self._world, self._filters
+        executed, wall = world.step(controls, dt)
+        ranges, bearings, ids, counts = world.measure()
+        filters.predict(executed, dt)
+        filters.update(ranges, bearings, ids, counts)
+        obs = self._observations
+        config, sensor = template.observation_config, template.sensor
+        half_fov = 0.5 * sensor.fov if sensor.fov < 2.0 * math.pi else math.pi
+        encode_many(self._coverage, config.coverage_resolution, template.encoder.half_arena, sensor.max_range,
+                    half_fov, config.map_size, config.map_extent, config.nearest_landmarks,
+                    template.world_config.arena_size * math.sqrt(2.0), config.std_scale, filters.robot_info,
+                    filters.robot_links, filters.landmark_info, filters.neighbour_index, filters.neighbour_info,
+                    filters.neighbour_count, filters.information_vector, filters.mean, filters.block_position,
+                    filters.active, filters.counters, obs["pose"], obs["landmarks"], obs["landmarks_mask"],
+                    obs["belief_map"], self._blanket_covariances)  # fmt: skip
+        rewards, map_error, pose_error = np.zeros(n), np.zeros(n), np.zeros(n)
+        diverged = np.zeros(n, dtype=bool)
+        pose_nees, pose_nees_blanket = np.zeros(n), np.zeros(n)
+        reward_config = template.reward_config
+        _score_many(world.poses, self._truth, filters.mean, filters.counters, filters.ids, filters.robot_info,
+                    filters.robot_links, filters.landmark_info, filters.neighbour_index, filters.neighbour_info,
+                    filters.neighbour_count, filters.information_vector, filters.block_position,
+                    self._blanket_covariances, reward_config.d_cap, self._previous_error, wall,
+                    reward_config.wall_penalty, reward_config.divergence_threshold, rewards, map_error, pose_error,
+                    diverged, pose_nees, pose_nees_blanket)  # fmt: skip
+        self._elapsed += 1
+        terminated = diverged.copy()
+        truncated = (self._elapsed >= self.max_episode_steps if self.max_episode_steps is not None
+                     else np.zeros(n, dtype=bool))  # fmt: skip
+        infos = self._step_infos(controls, executed, wall, ranges, bearings, ids, counts, map_error, pose_error,
+                                 diverged, pose_nees, pose_nees_blanket)  # fmt: skip
+        observations = self._copy_observations()
+        if self.autoreset_mode == AutoresetMode.NEXT_STEP:
+            # a sub-env whose previous step ended its episode starts a new one instead of stepping
+            for e in np.flatnonzero(self._autoreset).tolist():
+                observation, info = self.envs[e].reset()
+                self._load(e)
+                for key, value in observation.items():
+                    observations[key][e] = value
+                    self._observations[key][e] = value
+                rewards[e], terminated[e], truncated[e] = 0.0, False, False
+                infos = self._replace_info(infos, info, e)
+            self._autoreset = terminated | truncated
+        else:
+            for e in np.flatnonzero(terminated | truncated).tolist():
+                # as SyncVectorEnv: the ending step's observation and info go under final_obs / final_info
+                final = {key: value[e].copy() for key, value in observations.items()}
+                infos = self._add_info(infos, {"final_obs": final, "final_info": self._info_of(infos, e)}, e)
+                observation, info = self.envs[e].reset()
+                self._load(e)
+                for key, value in observation.items():
+                    observations[key][e] = value
+                    self._observations[key][e] = value
+                infos = self._replace_info(infos, info, e)
+        return observations, rewards, terminated, truncated, infos
+
+    def _step_infos(self, controls, executed, wall, ranges, bearings, ids, counts, map_error, pose_error, diverged,
+                    pose_nees, pose_nees_blanket) -> dict[str, Any]:  # fmt: skip
+        """The batched infos of a step: the single env's keys, each with its ``_key`` mask."""
+        n = self.num_envs
+        filters, world = self._filters, self._world
+        total = self.envs[0].world_config.num_landmarks
+        active = np.empty(n, dtype=object)
+        measurements = np.empty(n, dtype=object)
+        for e in range(n):
+            active[e] = tuple(filters.ids[e, filters.active[e, : filters.counters[e, 1]]].tolist())
+            m = counts[e]
+            measurements[e] = Measurements(ranges[e, :m].copy(), bearings[e, :m].copy(), ids[e, :m].copy())
+        # the single env's info uses math.hypot (CPython's own algorithm, not libm's hypot, which the
+        # divergence test uses): the same function here, so that the values agree to the last bit
+        error = world.poses[:, :2] - filters.mean[:, :2]
+        pose_error = np.array([math.hypot(dx, dy) for dx, dy in error.tolist()])
+        values: dict[str, Any] = {
+            "true_pose": world.poses.copy(),
+            "pose_estimate": filters.mean[:, :3].copy(),
+            "pose_error": pose_error,
+            "map_error": map_error,
+            "pose_nees": pose_nees,
+            "pose_nees_blanket": pose_nees_blanket,
+            "landmarks_mapped": filters.counters[:, 0].copy(),
+            "landmarks_total": np.full(n, total, dtype=np.int64),
+            "active_landmarks": active,
+            "control": controls.copy(),
+            "executed_control": executed.copy(),
+            "measurements": measurements,
+            "step_time": np.zeros(n),
+            "wall_contact": wall.copy(),
+            "diverged": diverged,
+            "association_errors": np.zeros(n, dtype=np.int64),
+        }
+        infos: dict[str, Any] = {}
+        mask = np.ones(n, dtype=bool)
+        for key, value in values.items():
+            infos[key] = value
+            infos[f"_{key}"] = mask.copy()
+        return infos
+
+    @staticmethod
+    def _info_of(infos: dict[str, Any], e: int) -> dict[str, Any]:
+        """Sub-env ``e``'s own info out of batched ``infos`` (as the single env returned it)."""
+        single: dict[str, Any] = {}
+        for key, value in infos.items():
+            mask = infos.get(f"_{key}")
+            if key.startswith("_") or key in ("final_obs", "final_info") or mask is None or not mask[e]:
+                continue
+            item = value[e]
+            single[key] = item.item() if isinstance(item, np.generic) else item
+        return single
+
+    def _replace_info(self, infos: dict[str, Any], info: dict[str, Any], e: int) -> dict[str, Any]:
+        """Put sub-env ``e``'s reset ``info`` in place of its step info."""
+        for key in [k for k in infos if not k.startswith("_") and k not in ("final_obs", "final_info")]:
+            infos[f"_{key}"][e] = False
+        return self._add_info(infos, info, e)
+
+    # -- the rest of the API ---------------------------------------------------------------------------
+    def render(self):
+        """The frame of sub-env 0 (``render_mode="rgb_array"``)."""
+        if self._sync is not None:
+            return self._sync.render()
+        raise NotImplementedError("render() of the compiled backend is not implemented yet")
+
+    def close_extras(self, **kwargs: Any) -> None:
+        if self._sync is not None:
+            self._sync.close()
+        for env in self.envs:
+            env.close()

@@ -1,0 +1,74 @@
+"""SeifExploreVectorEnv: N envs in compiled calls equal a SyncVectorEnv of N single envs, bit for bit."""
+
+from __future__ import annotations
+
+import gymnasium as gym
+import numpy as np
+import pytest
+from gymnasium.vector import AutoresetMode, SyncVectorEnv
+
+import seif_gym  # noqa: F401  (registers the envs)
+from seif_gym.envs.explore import Measurements
+from seif_gym.envs.vector import SeifExploreVectorEnv
+
+
+def _assert_equal(a, b, where: str) -> None:
+    if isinstance(a, dict):
+        assert isinstance(b, dict) and set(a) == set(b), f"{where}: keys {sorted(a)} vs {sorted(b)}"
+        for key in a:
+            _assert_equal(a[key], b[key], f"{where}.{key}")
+    elif isinstance(a, np.ndarray) and a.dtype == object:
+        assert isinstance(b, np.ndarray) and b.dtype == object and a.shape == b.shape, where
+        for k, (x, y) in enumerate(zip(a, b)):
+            _assert_equal(x, y, f"{where}[{k}]")
+    elif isinstance(a, Measurements):
+        assert isinstance(b, Measurements), where
+        for field in Measurements._fields:
+            np.testing.assert_array_equal(getattr(a, field), getattr(b, field), err_msg=f"{where}.{field}")
+    elif isinstance(a, np.ndarray):
+        assert isinstance(b, np.ndarray) and a.dtype == b.dtype and a.shape == b.shape, f"{where}: {a.dtype}{a.shape} vs {getattr(b, 'dtype', type(b))}{getattr(b, 'shape', '')}"
+        np.testing.assert_array_equal(a, b, err_msg=where)
+    else:
+        assert a == b, f"{where}: {a!r} vs {b!r}"
+
+
+@pytest.mark.parametrize("mode", [AutoresetMode.NEXT_STEP, AutoresetMode.SAME_STEP])
+def test_vector_env_equals_sync_vector_env(mode):
+    num_envs, steps, limit = 3, 120, 30
+    kwargs = {"divergence_threshold": 0.06}  # some episodes end by divergence, the others by the time limit
+    native = SeifExploreVectorEnv(num_envs, max_episode_steps=limit, autoreset_mode=mode, **kwargs)
+    assert native.backend == "compiled" and native.metadata["autoreset_mode"] == mode
+    reference = SyncVectorEnv([lambda: gym.make("SeifExplore-v1", max_episode_steps=limit, **kwargs)
+                               for _ in range(num_envs)], autoreset_mode=mode)  # fmt: skip
+    observations, infos = native.reset(seed=11)
+    expected_observations, expected_infos = reference.reset(seed=11)
+    _assert_equal(observations, expected_observations, "reset obs")
+    _assert_equal(infos, expected_infos, "reset info")
+    rng = np.random.default_rng(3)
+    ended = {"terminated": 0, "truncated": 0}
+    for t in range(steps):
+        actions = rng.uniform(-1.0, 1.0, size=(num_envs, 2))
+        got = native.step(actions)
+        expected = reference.step(actions)
+        for name, a, b in zip(("obs", "reward", "terminated", "truncated", "info"), got, expected):
+            _assert_equal(a, b, f"step {t} {name}")
+        ended["terminated"] += int(got[2].sum())
+        ended["truncated"] += int(got[3].sum())
+    assert ended["terminated"] > 0 and ended["truncated"] > 0  # both ways of ending (and their resets) exercised
+    native.close()
+    reference.close()
+
+
+def test_vector_env_rejects_bad_actions_before_any_env_moves():
+    env = SeifExploreVectorEnv(2, max_episode_steps=10)
+    env.reset(seed=0)
+    poses = env._world.poses.copy()
+    with pytest.raises(ValueError, match="actions"):
+        env.step(np.array([[0.5, 0.0], [np.nan, 0.0]]))
+    with pytest.raises(ValueError, match="shape"):
+        env.step(np.zeros(2))
+    np.testing.assert_array_equal(env._world.poses, poses)
+    with pytest.raises(ValueError, match="num_envs"):
+        SeifExploreVectorEnv(0)
+    with pytest.raises(ValueError, match="autoreset_mode"):
+        SeifExploreVectorEnv(1, autoreset_mode="Disabled")

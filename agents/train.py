@@ -63,7 +63,7 @@ class TrainConfig:
     eval_freq: int = 50_000
     eval_episodes: int = 10
     checkpoint_freq: int = 250_000
-    vec_env: str = "dummy"
+    vec_env: str = "native"
     init_from: str | None = None
     progress_bar: bool = True
     wrapper: str | None = None
@@ -178,8 +178,19 @@ def train(config: TrainConfig):
         # wrapper_class would sit outside the Monitor, which would then log the env's own reward)
         load_wrapper(config.wrapper)  # fail early
         env_id = functools.partial(_wrapped_env, env_id, config.wrapper, dict(config.wrapper_kwargs))
-    env = make_vec_env(env_id, n_envs=config.n_envs, seed=config.seed, vec_env_cls=vec_cls, env_kwargs=config.env_kwargs)
-    eval_env = make_vec_env(env_id, n_envs=1, seed=config.seed + 10_000, env_kwargs=config.env_kwargs)
+    if config.vec_env == "native" and not config.wrapper:
+        # the native vector env (gym.make_vec: N envs in compiled calls) behind SB3's VecEnv interface
+        from stable_baselines3.common.vec_env import VecMonitor
+
+        from agents.sb3_vec_env import NativeVecEnv
+
+        env = VecMonitor(NativeVecEnv(env_id, config.n_envs, seed=config.seed, env_kwargs=config.env_kwargs))
+        # the same wrappers around the evaluation env, so that EvalCallback can copy the normalisation
+        eval_env = VecMonitor(NativeVecEnv(env_id, 1, seed=config.seed + 10_000, env_kwargs=config.env_kwargs))
+    else:  # a reward wrapper needs single envs
+        env = make_vec_env(env_id, n_envs=config.n_envs, seed=config.seed, vec_env_cls=vec_cls,
+                           env_kwargs=config.env_kwargs)  # fmt: skip
+        eval_env = make_vec_env(env_id, n_envs=1, seed=config.seed + 10_000, env_kwargs=config.env_kwargs)
     if config.normalize:
         env = VecNormalize(env, **config.normalize)
         eval_env = VecNormalize(eval_env, training=False, norm_reward=False, **{k: v for k, v in config.normalize.items() if k != "norm_reward"})
@@ -253,8 +264,10 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--out", required=True, help="output directory")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--n-envs", type=int, default=None)
-    parser.add_argument("--vec-env", choices=("subproc", "dummy"), default="dummy",
-                        help="dummy: all envs in this process (best on 2 cores: the env is fast, the update dominates)")
+    parser.add_argument("--vec-env", choices=("native", "subproc", "dummy"), default="native",
+                        help="native: gym.make_vec's vector env (all envs in compiled calls; the default), "
+                             "dummy: single envs one after another in this process, subproc: one process each; "
+                             "with --wrapper, native falls back to dummy")
     parser.add_argument("--hyperparams", nargs="*", type=_parse_override, help="overrides, e.g. learning_rate=1e-4")
     parser.add_argument("--eval-freq", type=int, default=50_000)
     parser.add_argument("--eval-episodes", type=int, default=10)

@@ -35,6 +35,8 @@ from gymnasium.envs.registration import register, registry
 __version__ = "0.2.0"
 
 ENTRY_POINT = "seif_gym.envs.explore:SeifExploreEnv"
+#: ``gym.make_vec(id, num_envs=N)`` builds this: N envs advanced by compiled kernels (seif_gym/envs/vector.py).
+VECTOR_ENTRY_POINT = "seif_gym.envs.vector:SeifExploreVectorEnv"
 
 #: name -> (kwargs, max_episode_steps) of every layout variant, whatever the version.
 _LAYOUTS: dict[str, tuple[dict, int]] = {
@@ -62,6 +64,7 @@ VARIANTS: dict[str, tuple[dict, int]] = {
 
 for _env_id, (_kwargs, _steps) in VARIANTS.items():
     if _env_id not in registry:
-        register(id=_env_id, entry_point=ENTRY_POINT, kwargs=_kwargs, max_episode_steps=_steps)
+        register(id=_env_id, entry_point=ENTRY_POINT, vector_entry_point=VECTOR_ENTRY_POINT, kwargs=_kwargs,
+                 max_episode_steps=_steps)
 
-__all__ = ["VARIANTS", "VERSIONS", "LATEST_VERSION", "ENTRY_POINT", "__version__"]
+__all__ = ["VARIANTS", "VERSIONS", "LATEST_VERSION", "ENTRY_POINT", "VECTOR_ENTRY_POINT", "__version__"]

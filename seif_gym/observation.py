@@ -13,7 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from gymnasium import spaces
-from numba import njit
+from numba import njit, prange
 from numpy.typing import NDArray
 
 from seif_gym.slam._kernels import blanket_covariances, blanket_nodes, conditional_std
@@ -258,7 +258,7 @@ class BeliefEncoder:
         return {"pose": pose_obs, "landmarks": landmark_obs, "landmarks_mask": mask, "belief_map": belief_map}
 
 
-@njit(cache=True)
+@njit(cache=True, parallel=True)
 def encode_many(coverage, resolution, half_arena, max_range, half_fov, map_size, map_extent, nearest_landmarks,
                 diagonal, std_scale, robot_info, robot_links, landmark_info, neighbour_index, neighbour_info,
                 neighbour_count, information_vector, mean, block_position, active, counters,
@@ -270,7 +270,7 @@ def encode_many(coverage, resolution, half_arena, max_range, half_fov, map_size,
     it used into ``pose_covariance_out`` (N, 3, 3), with the same kernels and operations
     as the single encoder.
     """
-    for e in range(mean.shape[0]):
+    for e in prange(mean.shape[0]):
         x = mean[e, 0]
         y = mean[e, 1]
         theta = mean[e, 2]

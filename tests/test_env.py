@@ -1022,7 +1022,7 @@ def close_vec(envs, failed: bool) -> None:
         envs.close()
 
 
-@pytest.mark.parametrize("mode", ["sync", "async"])
+@pytest.mark.parametrize("mode", ["sync", "async", "vector_entry_point"])
 def test_gymnasium_make_vec(mode):
     """``gym.make_vec`` batches observations and infos (variable-length entries as object arrays), warning-free."""
     num_envs = 8

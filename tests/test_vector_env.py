@@ -72,3 +72,45 @@ def test_vector_env_rejects_bad_actions_before_any_env_moves():
         SeifExploreVectorEnv(0)
     with pytest.raises(ValueError, match="autoreset_mode"):
         SeifExploreVectorEnv(1, autoreset_mode="Disabled")
+
+
+def test_vector_env_renders_sub_env_0_as_the_single_env_would():
+    env = gym.make_vec("SeifExplore-v1", num_envs=2, max_episode_steps=8, render_mode="rgb_array")
+    assert isinstance(env, SeifExploreVectorEnv) and env.backend == "compiled"
+    single = gym.make("SeifExplore-v1", max_episode_steps=8, render_mode="rgb_array")
+    observations, _ = env.reset(seed=3)
+    expected, _ = single.reset(seed=3)
+    np.testing.assert_array_equal(env.render(), single.render())
+    rng = np.random.default_rng(0)
+    for t in range(12):  # through the time limit and the next episode's start
+        actions = rng.uniform(-1, 1, size=(2, 2))
+        observations, _, _, truncated, _ = env.step(actions)
+        if t == 8:  # NextStep: this step reset sub-env 0
+            expected, _ = single.reset()
+        else:
+            expected, _, _, _, _ = single.step(actions[0])
+        for key in expected:
+            np.testing.assert_array_equal(observations[key][0], expected[key], err_msg=f"step {t} {key}")
+        np.testing.assert_array_equal(env.render(), single.render(), err_msg=f"step {t}")
+    env.close()
+    single.close()
+
+
+@pytest.mark.parametrize("env_id", ["SeifExploreLoop-v1", "SeifExploreClustered-v1", "SeifExploreLarge-v1", "SeifExplore-v0"])
+def test_every_variant_vectorises_equal_to_single_envs(env_id):
+    """gym.make_vec(id) is the native env (compiled for -v1, a SyncVectorEnv inside for -v0's amortized recovery)."""
+    limit, steps = 15, 35
+    native = gym.make_vec(env_id, num_envs=2, max_episode_steps=limit)
+    assert isinstance(native, SeifExploreVectorEnv)
+    assert native.backend == ("sync" if env_id.endswith("-v0") else "compiled")
+    reference = SyncVectorEnv([lambda: gym.make(env_id, max_episode_steps=limit) for _ in range(2)])
+    for name, a, b in zip(("obs", "info"), native.reset(seed=2), reference.reset(seed=2)):
+        _assert_equal(a, b, f"{env_id} reset {name}")
+    rng = np.random.default_rng(1)
+    for t in range(steps):
+        actions = rng.uniform(-1, 1, size=(2, 2))
+        for name, a, b in zip(("obs", "reward", "terminated", "truncated", "info"), native.step(actions),
+                              reference.step(actions)):  # fmt: skip
+            _assert_equal(a, b, f"{env_id} step {t} {name}")
+    native.close()
+    reference.close()

@@ -26,6 +26,7 @@ autoreset modes; one exception: ``info["pose_nees"]`` on maps of more than
 
 from __future__ import annotations
 
+import copy
 import math
 from typing import Any
 
@@ -162,7 +163,11 @@ class SeifExploreVectorEnv(VectorEnv):
         env = self.envs[e]
         world, filt = env.world, env.filter
         assert isinstance(filt, SEIF) and world is not None
-        self._world.reset(e, world.landmarks, world.pose, env._motion_rng, env._sensor_rng)
+        motion_rng, sensor_rng = env._motion_rng, env._sensor_rng
+        if e == 0 and self.render_mode is not None:
+            # sub-env 0 also steps as a single env, to be drawn: it keeps its generators, the arrays get copies
+            motion_rng, sensor_rng = copy.deepcopy(motion_rng), copy.deepcopy(sensor_rng)
+        self._world.reset(e, world.landmarks, world.pose, motion_rng, sensor_rng)
         self._truth[e] = world.landmarks
         self._filters.load(e, filt)
         self._coverage[e] = env.encoder.coverage
@@ -206,6 +211,8 @@ class SeifExploreVectorEnv(VectorEnv):
             raise ValueError(f"actions must be finite, got non-finite rows {np.flatnonzero(~np.isfinite(actions).all(1)).tolist()}")
         n = self.num_envs
         template = self.envs[0]
+        if self.render_mode is not None and not self._autoreset[0]:
+            template.step(actions[0])  # the drawn copy of sub-env 0 (its own generators: the same draws)
         dt = template.robot_config.dt
         controls = np.clip(actions, -1.0, 1.0) * self._scale
         world, filters = self._world, self._filters
@@ -325,10 +332,16 @@ class SeifExploreVectorEnv(VectorEnv):
 
     # -- the rest of the API ---------------------------------------------------------------------------
     def render(self):
-        """The frame of sub-env 0 (``render_mode="rgb_array"``)."""
+        """The frame of sub-env 0 (``render_mode="rgb_array"``), drawn by the single env that runs beside it."""
         if self._sync is not None:
             return self._sync.render()
-        raise NotImplementedError("render() of the compiled backend is not implemented yet")
+        if self.render_mode is None:
+            gym.logger.warn("render() called without a render_mode; pass render_mode='rgb_array' to make_vec()")
+            return None
+        single = self.envs[0]
+        if single.spec is None and self.spec is not None and self.spec.id in gym.registry:
+            single.spec = gym.spec(self.spec.id)  # the frame's header names the env id, as the single env's does
+        return single.render()
 
     def close_extras(self, **kwargs: Any) -> None:
         if self._sync is not None:

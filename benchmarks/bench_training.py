@@ -1,0 +1,62 @@
+"""PPO training throughput with each vector env: native (``gym.make_vec``), SB3's DummyVecEnv, SubprocVecEnv.
+
+Usage::
+
+    python benchmarks/bench_training.py [--env SeifExplore-v1] [--timesteps 16384] [--n-envs 8]
+
+Runs ``python -m agents.train`` with the shipped hyperparameters
+(``agents/hyperparams/ppo.yml``: 512 steps per env per rollout, 5 epochs of
+minibatches of 1024) once per ``--vec-env``, evaluation and checkpoints out of
+the way, and prints the steps per second of ``model.learn`` (what
+``train_time.json`` records). Each run is a fresh process, so the numbers
+include neither the other runs' warm caches nor their threads.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+VEC_ENVS = ("native", "dummy", "subproc")
+
+
+def run(env_id: str, vec_env: str, timesteps: int, n_envs: int, folder: Path) -> float:
+    """Steps per second of one training run."""
+    out = folder / vec_env
+    command = [sys.executable, "-m", "agents.train", "--algo", "ppo", "--env", env_id, "--timesteps", str(timesteps),
+               "--n-envs", str(n_envs), "--vec-env", vec_env, "--out", str(out), "--no-progress-bar",
+               "--eval-freq", str(10 * timesteps), "--checkpoint-freq", str(10 * timesteps)]  # fmt: skip
+    subprocess.run(command, check=True, capture_output=True, text=True, env={**os.environ, "OPENBLAS_NUM_THREADS": "1"})
+    record = json.loads((out / "train_time.json").read_text())
+    return record["timesteps"] / record["seconds"]
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--env", default="SeifExplore-v1")
+    parser.add_argument("--timesteps", type=int, default=16384)
+    parser.add_argument("--n-envs", type=int, default=8)
+    parser.add_argument("--vec-envs", default=",".join(VEC_ENVS), help="comma-separated, of " + ", ".join(VEC_ENVS))
+    args = parser.parse_args(argv)
+    chosen = [name.strip() for name in args.vec_envs.split(",") if name.strip()]
+    for name in chosen:
+        if name not in VEC_ENVS:
+            parser.error(f"--vec-envs: unknown {name!r}")
+    with tempfile.TemporaryDirectory() as folder:
+        rates = {name: run(args.env, name, args.timesteps, args.n_envs, Path(folder)) for name in chosen}
+    print(f"PPO on {args.env}, {args.n_envs} envs, {args.timesteps} steps, {os.cpu_count()} CPUs")
+    print()
+    print("| vec env | training steps/s |")
+    print("|---|---:|")
+    for name, rate in rates.items():
+        print(f"| {name} | {rate:,.0f} |")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -929,7 +929,8 @@ def make_agent(name: str, env: Any | None = None, **kwargs: Any) -> Agent:
     Parameters
     ----------
     name : str
-        One of :data:`BASELINES`.
+        One of :data:`BASELINES`, or ``"rllib:PATH"``: a checkpoint of
+        ``python -m agents.rllib_train`` (:class:`agents.rllib_agent.RLlibAgent`).
     env : gymnasium.Env or None
         The env the agent will act in. ``info_gain`` needs it (it plans with
         the env's filter); the others only read its configuration and accept
@@ -941,6 +942,10 @@ def make_agent(name: str, env: Any | None = None, **kwargs: Any) -> Agent:
     -------
     Agent
     """
+    if isinstance(name, str) and name.startswith("rllib:"):  # an RLlib checkpoint (needs the optional ray extra)
+        from agents.rllib_agent import RLlibAgent
+
+        return RLlibAgent(name[len("rllib:") :], env, **kwargs)
     try:
         cls = _REGISTRY[name]
     except KeyError:

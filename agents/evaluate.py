@@ -230,8 +230,10 @@ def build_agent(spec: str, env: gym.Env, env_id: str, env_kwargs: Mapping[str, A
         if not Path(spec).exists():
             raise FileNotFoundError(f"no model at {spec}")
         return SB3Agent(spec, env, env_factory=lambda: gym.make(env_id, **env_kwargs))
-    if spec not in BASELINES:
-        raise ValueError(f"unknown agent {spec!r}: use one of {', '.join(BASELINES)} or the path of an SB3 .zip")
+    if spec not in BASELINES and not spec.startswith("rllib:"):
+        raise ValueError(
+            f"unknown agent {spec!r}: use one of {', '.join(BASELINES)}, the path of an SB3 .zip or rllib:CHECKPOINT"
+        )
     return make_agent(spec, env, **({"seed": seed} if spec == "random" else {}))
 
 

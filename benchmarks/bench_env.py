@@ -11,14 +11,6 @@ in alternation, ``--repeats`` times, and the best of the repeats is kept for
 each (the least disturbed by other processes on the machine); the ratio is
 SeifExplore's rate over CartPole's. The issue's target is a ratio of at least
 0.05. A profile of the env step (``--profile``) lists where the time goes.
-
-``--num-envs N`` measures vector envs instead, N sub-envs stepped together
-(env steps per second = N × vector steps per second): ``gym.make_vec(id, N)``
-(for SeifExplore the native vector env, its kernels in parallel over the
-sub-envs), the same with ``vectorization_mode="sync"`` (a ``SyncVectorEnv`` of
-single envs) and CartPole-v1's native vector env::
-
-    python benchmarks/bench_env.py --num-envs 64 --env SeifExplore-v1
 """
 
 from __future__ import annotations
@@ -55,58 +47,13 @@ def steps_per_second(env: gym.Env, steps: int) -> float:
     return steps / (time.perf_counter() - started)
 
 
-def vector_steps_per_second(env: gym.vector.VectorEnv, steps: int) -> float:
-    """Env steps per second (sub-envs × vector steps) over ``steps`` vector steps of random actions."""
-    env.reset(seed=0)
-    env.action_space.seed(0)
-    actions = [env.action_space.sample() for _ in range(steps)]
-    started = time.perf_counter()
-    for action in actions:
-        env.step(action)
-    return steps * env.num_envs / (time.perf_counter() - started)
-
-
-def vector_main(env_ids: list[str], num_envs: int, steps: int, repeats: int) -> None:
-    """The ``--num-envs`` table: native vs sync vector envs vs CartPole-v1's native one."""
-    makers = {f"CartPole-v1 native ({num_envs})": lambda: gym.make_vec("CartPole-v1", num_envs=num_envs,
-                                                                       vectorization_mode="vector_entry_point")}
-    for env_id in env_ids:
-        makers[f"{env_id} native ({num_envs})"] = lambda env_id=env_id: gym.make_vec(env_id, num_envs=num_envs)
-        makers[f"{env_id} SyncVectorEnv ({num_envs})"] = lambda env_id=env_id: gym.make_vec(
-            env_id, num_envs=num_envs, vectorization_mode="sync")
-    envs = {name: make() for name, make in makers.items()}
-    for env in envs.values():  # compile first
-        vector_steps_per_second(env, 5)
-    best = dict.fromkeys(envs, 0.0)
-    for _ in range(repeats):
-        for name, env in envs.items():
-            count = steps * 20 if name.startswith("CartPole") else steps
-            best[name] = max(best[name], vector_steps_per_second(env, count))
-    print(f"Python {platform.python_version()}, numpy {np.__version__}, numba {numba.__version__} "
-          f"({numba.config.NUMBA_NUM_THREADS} threads), gymnasium {gym.__version__}, {os.cpu_count()} CPUs; "
-          f"best of {repeats} repeats")  # fmt: skip
-    print()
-    print("| vector env | env steps/s | µs per env step |")
-    print("|---|---:|---:|")
-    for name, rate in best.items():
-        print(f"| {name} | {rate:,.0f} | {1e6 / rate:.1f} |")
-    for env_id in env_ids:
-        native = best[f"{env_id} native ({num_envs})"]
-        sync = best[f"{env_id} SyncVectorEnv ({num_envs})"]
-        print(f"\n{env_id}: native {native / sync:.2f}x the SyncVectorEnv")
-
-
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--env", nargs="*", default=["SeifExplore-v0"], help="env ids to measure")
     parser.add_argument("--steps", type=int, default=20_000)
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--profile", action="store_true", help="print a cProfile of the first env's step")
-    parser.add_argument("--num-envs", type=int, default=0, help="measure vector envs of this many sub-envs")
     args = parser.parse_args()
-    if args.num_envs > 0:
-        vector_main(args.env, args.num_envs, max(args.steps // args.num_envs, 20), args.repeats)
-        return
 
     cartpole = gym.make("CartPole-v1")
     envs = {env_id: gym.make(env_id) for env_id in args.env}

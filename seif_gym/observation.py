@@ -1,26 +1,36 @@
-"""Belief -> observation: what an agent of ``SeifExplore-v0`` sees.
+"""Belief -> observation: what an agent of ``SeifExplore-v0`` sees, and back.
 
 Everything here is computed from the filter's belief (its estimated pose and
 map, and their uncertainty) and from what the robot itself knows (the arena's
 size, its sensor). Nothing reads the true state: an encoder is never handed
 the world.
+
+:class:`BeliefEncoder` makes the observation; :class:`ObservationDecoder`
+(``encoder.decoder()``, or ``ObservationDecoder.from_env(env)``) is its
+inverse, which agents use to read the observation in metres with the numbers
+of the env that made it.
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass
 
 import numpy as np
 from gymnasium import spaces
-from numba import njit, prange
+from numba import njit
 from numpy.typing import NDArray
 
+from seif_gym.metrics import CHI2_95_2DOF
 from seif_gym.slam._kernels import blanket_covariances, blanket_nodes, conditional_std
 from seif_gym.slam.base import SlamFilter
 from seif_gym.slam.models import RangeBearingSensor
 
-__all__ = ["ObservationConfig", "BeliefEncoder", "POSE_FEATURES", "LANDMARK_FEATURES", "MAP_CHANNELS"]
+__all__ = [
+    "ObservationConfig", "BeliefEncoder", "ObservationDecoder", "BeliefRaster", "read_belief_map", "landmark_rows",
+    "POSE_FEATURES", "LANDMARK_FEATURES", "MAP_CHANNELS", "DIAGONAL_OVER_HALF",
+]  # fmt: skip
 
 FloatArray = NDArray[np.float64]
 
@@ -31,8 +41,8 @@ LANDMARK_FEATURES = ("forward", "left", "major_axis_95", "minor_axis_95")
 #: Channels of ``obs["belief_map"]``.
 MAP_CHANNELS = ("swept", "landmarks", "outside_arena")
 
-#: 95% quantile of the chi-square distribution with 2 degrees of freedom.
-CHI2_2DOF_95 = 5.991464547107979
+#: 95% quantile of the chi-square distribution with 2 degrees of freedom (home: :mod:`seif_gym.metrics`).
+CHI2_2DOF_95 = CHI2_95_2DOF
 
 
 @dataclass(frozen=True)
@@ -213,6 +223,10 @@ class BeliefEncoder:
     def reset(self) -> None:
         self.coverage[:] = 0
 
+    def decoder(self) -> ObservationDecoder:
+        """The inverse of this encoder: reads its observations in metres and radians."""
+        return ObservationDecoder(self.arena_size, self.config)
+
     def sweep(self, pose: FloatArray) -> None:
         """Add what the sensor sees from the *estimated* ``pose`` to the swept area."""
         half_fov = 0.5 * self.sensor.fov if self.sensor.fov < 2.0 * math.pi else math.pi
@@ -258,7 +272,245 @@ class BeliefEncoder:
         return {"pose": pose_obs, "landmarks": landmark_obs, "landmarks_mask": mask, "belief_map": belief_map}
 
 
-@njit(cache=True, parallel=True)
+# -- decoding: the inverse of BeliefEncoder -----------------------------------------------------------
+#: ``diagonal / h`` of a square arena: the landmark offsets of ``obs["landmarks"]`` times this are in
+#: units of ``h`` (half the arena side), like the position in ``obs["pose"]``.
+DIAGONAL_OVER_HALF = 2.0 * math.sqrt(2.0)
+
+
+def read_belief_map(observation: Mapping[str, np.ndarray] | np.ndarray) -> FloatArray:
+    """``obs["belief_map"]`` as ``float64`` in ``[0, 1]``.
+
+    Parameters
+    ----------
+    observation : dict or ndarray
+        The observation dict or the map itself, single ``(3, H, H)`` or
+        batched ``(n_envs, 3, H, H)``.
+
+    Returns
+    -------
+    ndarray
+        The ``uint8`` map divided by 255; a float map (already in ``[0, 1]``,
+        the format before ``uint8``) only converted to ``float64``.
+    """
+    raw = np.asarray(observation["belief_map"] if isinstance(observation, Mapping) else observation)
+    belief = np.asarray(raw, dtype=np.float64)
+    if raw.dtype == np.uint8:
+        belief /= 255.0
+    return belief
+
+
+def landmark_rows(observation: Mapping[str, np.ndarray] | np.ndarray, batched: bool = False) -> FloatArray:
+    """``obs["landmarks"]`` as ``float64`` rows ``(forward, left, major, minor)``, still normalised.
+
+    Parameters
+    ----------
+    observation : dict or ndarray
+        The observation dict or the entry itself: flat ``(4K,)``, or with
+        ``batched=True`` ``(n_envs, 4K)``; already-shaped rows come back
+        unchanged.
+    batched : bool
+        Whether there is a leading ``n_envs`` axis.
+
+    Returns
+    -------
+    ndarray
+        ``(K, 4)``, or ``(n_envs, K, 4)``.
+    """
+    raw = observation["landmarks"] if isinstance(observation, Mapping) else observation
+    rows = np.asarray(raw, dtype=np.float64)
+    if batched:
+        return rows.reshape(rows.shape[0], -1, 4)
+    return rows.reshape(-1, 4)
+
+
+@dataclass(frozen=True, eq=False)
+class BeliefRaster:
+    """Cell centres of ``obs["belief_map"]`` in metres, robot frame (heading up).
+
+    Cell ``(i, j)`` has its centre ``forward = e − (i + ½)·c`` ahead of the
+    robot and ``left = e − (j + ½)·c`` to its left (``e`` the map's
+    half-width, ``c = 2e/H`` the cell size): row 0 is ahead, column 0 left.
+
+    Attributes
+    ----------
+    size : int
+        ``H``.
+    extent : float
+        ``e``, metres.
+    cell : float
+        ``c``, metres.
+    forward, left, distance, bearing : ndarray, shape (H, H)
+        Per cell: metres ahead, metres to the left, distance (m) and bearing
+        (rad, left positive) of its centre.
+    """
+
+    size: int
+    extent: float
+    cell: float
+    forward: FloatArray
+    left: FloatArray
+    distance: FloatArray
+    bearing: FloatArray
+
+    @classmethod
+    def build(cls, size: int, extent: float) -> BeliefRaster:
+        """The raster of a ``size × size`` map of half-width ``extent`` metres."""
+        cell = 2.0 * extent / size
+        centres = extent - (np.arange(size) + 0.5) * cell
+        forward, left = np.meshgrid(centres, centres, indexing="ij")  # forward along rows, left along columns
+        return cls(size, extent, cell, forward, left, np.hypot(forward, left), np.arctan2(left, forward))
+
+
+@dataclass(frozen=True)
+class ObservationDecoder:
+    """The inverse of :class:`BeliefEncoder`: an observation read back in metres and radians.
+
+    Build it from the encoder that made the observations
+    (:meth:`BeliefEncoder.decoder`, or :meth:`from_env` for an env): the
+    observation is normalised by the arena's size and the observation's
+    configuration, so reading it with another env's numbers misplaces
+    everything without an error.
+
+    Parameters
+    ----------
+    arena_size : float
+        Side of the square arena, metres.
+    config : ObservationConfig
+        The encoder's configuration.
+
+    Notes
+    -----
+    The encoder clips to ``[-1, 1]`` (standard deviations and ellipse axes
+    to ``[0, 1]``): a clipped entry decodes to its bound, the rest exactly
+    up to ``float32`` rounding. Positions come in two units: metres
+    (:meth:`pose`, :meth:`landmarks`) and the observation's own units of
+    ``h``, half the arena side (``obs["pose"][:2]``, and
+    :data:`DIAGONAL_OVER_HALF` times the landmark offsets).
+    """
+
+    arena_size: float
+    config: ObservationConfig = ObservationConfig()
+
+    def __post_init__(self) -> None:
+        size = self.arena_size
+        if isinstance(size, bool) or not isinstance(size, (int, float, np.integer, np.floating)):
+            raise TypeError(f"arena_size must be a number, got {type(size).__name__}")
+        if not (math.isfinite(size) and size > 0):
+            raise ValueError(f"arena_size must be a finite positive number, got {size!r}")
+        if not isinstance(self.config, ObservationConfig):
+            raise TypeError(f"config must be an ObservationConfig, got {type(self.config).__name__}")
+        object.__setattr__(self, "arena_size", float(size))
+
+    @classmethod
+    def from_env(cls, env: object) -> ObservationDecoder:
+        """The decoder of ``env``'s encoder (``env.unwrapped.encoder``).
+
+        Raises
+        ------
+        TypeError
+            If ``env`` is ``None`` or has no :class:`BeliefEncoder` (not a
+            ``SeifExplore`` env).
+        """
+        if env is None:
+            raise TypeError("env must be a SeifExplore env, got None")
+        encoder = getattr(getattr(env, "unwrapped", env), "encoder", None)
+        if not isinstance(encoder, BeliefEncoder):
+            raise TypeError(f"env must be a SeifExplore env (with a BeliefEncoder), got {type(env).__name__}")
+        return encoder.decoder()
+
+    # -- geometry --------------------------------------------------------------------------------
+    @property
+    def half_arena(self) -> float:
+        """``h``, half the arena side, metres."""
+        return 0.5 * self.arena_size
+
+    @property
+    def diagonal(self) -> float:
+        """The arena's diagonal, metres: the landmark offsets' divisor."""
+        return self.arena_size * math.sqrt(2.0)
+
+    @property
+    def map_extent(self) -> float:
+        """Half-width of ``obs["belief_map"]``, metres."""
+        return float(self.config.map_extent)
+
+    @property
+    def std_scale(self) -> float:
+        """Divisor of the standard deviations and ellipse axes."""
+        return float(self.config.std_scale)
+
+    def raster(self) -> BeliefRaster:
+        """Cell centres of this encoder's belief map."""
+        return BeliefRaster.build(self.config.map_size, self.map_extent)
+
+    # -- reading -----------------------------------------------------------------------------------
+    def check(self, observation: Mapping[str, np.ndarray], batched: bool = False) -> None:
+        """Raise ``ValueError`` naming the entry whose shape this encoder does not make.
+
+        Parameters
+        ----------
+        observation : dict
+            One observation (or a batch, with ``batched=True``).
+        batched : bool
+            Whether the entries have a leading ``n_envs`` axis.
+        """
+        if not isinstance(observation, Mapping):
+            raise TypeError(f"observation must be the env's dict observation, got {type(observation).__name__}")
+        k, size = self.config.nearest_landmarks, self.config.map_size
+        expected = {"pose": (len(POSE_FEATURES),), "landmarks": (len(LANDMARK_FEATURES) * k,),
+                    "landmarks_mask": (k,), "belief_map": (len(MAP_CHANNELS), size, size)}  # fmt: skip
+        for key, shape in expected.items():
+            if key not in observation:
+                raise ValueError(f"observation has no {key!r} entry")
+            actual = np.shape(observation[key])[1:] if batched else np.shape(observation[key])
+            if tuple(actual) != shape:
+                raise ValueError(f"observation[{key!r}] has shape {tuple(actual)}, but this encoder makes {shape}: "
+                                 "an observation of another env?")  # fmt: skip
+
+    def pose(self, observation: Mapping[str, np.ndarray]) -> FloatArray:
+        """``(x, y, theta, σx, σy, σθ)`` of the estimated pose: metres and radians (shape (6,)).
+
+        ``theta`` is ``atan2(sin θ, cos θ)``, in ``[-π, π]``.
+        """
+        self.check(observation)
+        p = np.asarray(observation["pose"], dtype=np.float64)
+        half, scale = self.half_arena, self.std_scale
+        return np.array([p[0] * half, p[1] * half, math.atan2(p[3], p[2]), p[4] * scale, p[5] * scale, p[6] * math.pi])
+
+    def landmarks(self, observation: Mapping[str, np.ndarray]) -> tuple[FloatArray, NDArray[np.bool_]]:
+        """The ``K`` listed landmarks in metres, and which rows hold one.
+
+        Returns
+        -------
+        rows : ndarray, shape (K, 4)
+            ``(forward, left, major, minor)``: the offset in the robot frame
+            and the semi-axes of the 95 % ellipse (``sqrt(χ²₀.₉₅ · λ)`` of
+            the covariance's eigenvalues ``λ``), metres; zeros in empty rows.
+        mask : ndarray of bool, shape (K,)
+        """
+        self.check(observation)
+        rows = landmark_rows(observation)
+        metres = np.empty_like(rows)
+        metres[:, :2] = rows[:, :2] * self.diagonal
+        metres[:, 2:] = rows[:, 2:] * self.std_scale
+        return metres, np.asarray(observation["landmarks_mask"]) > 0.5
+
+    def landmark_positions(self, observation: Mapping[str, np.ndarray]) -> FloatArray:
+        """World positions (metres) of the listed landmarks, from the estimated pose: shape (m, 2), nearest first."""
+        x, y, theta = self.pose(observation)[:3]
+        rows, mask = self.landmarks(observation)
+        c, s = math.cos(theta), math.sin(theta)
+        forward, left = rows[mask, 0], rows[mask, 1]
+        return np.stack([x + c * forward - s * left, y + s * forward + c * left], axis=1)
+
+    def belief_map(self, observation: Mapping[str, np.ndarray]) -> FloatArray:
+        """``obs["belief_map"]`` as floats in ``[0, 1]`` (:func:`read_belief_map`), shape checked."""
+        self.check(observation)
+        return read_belief_map(observation)
+
+
+@njit(cache=True)
 def encode_many(coverage, resolution, half_arena, max_range, half_fov, map_size, map_extent, nearest_landmarks,
                 diagonal, std_scale, robot_info, robot_links, landmark_info, neighbour_index, neighbour_info,
                 neighbour_count, information_vector, mean, block_position, active, counters,
@@ -270,7 +522,7 @@ def encode_many(coverage, resolution, half_arena, max_range, half_fov, map_size,
     it used into ``pose_covariance_out`` (N, 3, 3), with the same kernels and operations
     as the single encoder.
     """
-    for e in prange(mean.shape[0]):
+    for e in range(mean.shape[0]):
         x = mean[e, 0]
         y = mean[e, 1]
         theta = mean[e, 2]

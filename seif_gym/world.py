@@ -11,7 +11,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from numba import njit, prange
+from numba import njit
 from numpy.typing import NDArray
 
 from seif_gym.slam.models import RangeBearingSensor, VelocityMotionModel, _visible_measurements, wrap_angle
@@ -162,10 +162,10 @@ def _wrap(angle):
     return wrapped
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True)
 def _step_worlds(poses, controls, dt, alphas, half_size, noise, cursor, executed, wall):
     """:meth:`World.step` of every world ``e``, its motion noise read from ``noise[e, cursor[e]:]``."""
-    for e in prange(poses.shape[0]):
+    for e in range(poses.shape[0]):
         x, y, theta = poses[e, 0], poses[e, 1], poses[e, 2]
         v, w = controls[e, 0], controls[e, 1]
         dx, dy, _ = _displacement(theta, v, w, dt)
@@ -188,11 +188,11 @@ def _step_worlds(poses, controls, dt, alphas, half_size, noise, cursor, executed
         poses[e, 2] = _wrap(heading)
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True)
 def _measure_worlds(poses, landmarks, max_range, half_fov, sigma_range, sigma_bearing, noise, cursor,
                     ranges, bearings, ids, counts):  # fmt: skip
     """:meth:`World.measure` of every world, its sensor noise read from ``noise[e, cursor[e]:]``."""
-    for e in prange(poses.shape[0]):
+    for e in range(poses.shape[0]):
         visible, z = _visible_measurements(poses[e, 0], poses[e, 1], poses[e, 2], landmarks[e], max_range, half_fov)
         c = cursor[e]
         m = visible.shape[0]

@@ -34,7 +34,7 @@ import gymnasium as gym
 import numpy as np
 from gymnasium.vector import AutoresetMode, SyncVectorEnv, VectorEnv
 from gymnasium.vector.utils import batch_space, concatenate, create_empty_array
-from numba import njit, prange
+from numba import njit
 
 from seif_gym.envs.explore import Measurements, SeifExploreEnv, _map_error, _nees
 from seif_gym.observation import encode_many
@@ -46,13 +46,13 @@ from seif_gym.world import BatchedWorld
 __all__ = ["SeifExploreVectorEnv"]
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True)
 def _score_many(true_poses, truth, mean, counters, ids, robot_info, robot_links, landmark_info, neighbour_index,
                 neighbour_info, neighbour_count, information_vector, block_position, blanket_covariances, d_cap,
                 previous_error, wall, wall_penalty, divergence_threshold, reward, map_error, pose_error, diverged,
                 pose_nees, pose_nees_blanket):  # fmt: skip
     """Reward, map error, pose error, divergence and the two pose NEES of every env (``SeifExploreEnv.step``)."""
-    for e in prange(mean.shape[0]):
+    for e in range(mean.shape[0]):
         error = np.empty(3)
         n = counters[e, 0]
         estimates = mean[e, 3 : 3 + 2 * n].reshape(n, 2)

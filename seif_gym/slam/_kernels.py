@@ -16,7 +16,7 @@ room (``reserve_landmarks`` / ``reserve_degree``).
 from __future__ import annotations
 
 import numpy as np
-from numba import njit, prange
+from numba import njit
 
 TWO_PI = 2.0 * np.pi
 
@@ -807,11 +807,11 @@ def rewrap_heading(robot_info, robot_links, information_vector, mean, active):
         information_vector[4 + 2 * i] += robot_links[i, 2, 1] * shift
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True)
 def seif_predict_many(robot_info, robot_links, landmark_info, neighbour_index, neighbour_info, neighbour_count,
                       information_vector, mean, block_position, active, active_count, controls, dt, alphas, floor):  # fmt: skip
-    """``SEIF.predict_trusted`` of every filter ``e`` of a batch (arrays with a leading filter axis), in parallel."""
-    for e in prange(controls.shape[0]):
+    """``SEIF.predict_trusted`` of every filter ``e`` of a batch (arrays with a leading filter axis)."""
+    for e in range(controls.shape[0]):
         delta = np.empty(3)
         jacobian = np.empty((3, 3))
         noise = np.empty((3, 3))
@@ -919,13 +919,13 @@ def seif_update_one(robot_info, robot_links, landmark_info, neighbour_index, nei
     counters[1] = kept
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True)
 def seif_update_many(robot_info, robot_links, landmark_info, neighbour_index, neighbour_info, neighbour_count,
                      information_vector, mean, block_position, active, counters, is_active, last_observed,
                      id_to_index, ids, queue, queued, queue_state, ranges, bearings, measured, measured_count,
                      noise_info, max_active, recovery_landmarks, budget, relaxation, tolerance):  # fmt: skip
-    """:func:`seif_update_one` for every filter ``e``, with its first ``measured_count[e]`` measurements (in parallel)."""
-    for e in prange(measured_count.shape[0]):
+    """:func:`seif_update_one` for every filter ``e``, with its first ``measured_count[e]`` measurements."""
+    for e in range(measured_count.shape[0]):
         m = measured_count[e]
         seif_update_one(robot_info[e], robot_links[e], landmark_info[e], neighbour_index[e], neighbour_info[e],
                         neighbour_count[e], information_vector[e], mean[e], block_position[e], active[e],

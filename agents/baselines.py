@@ -24,14 +24,17 @@ name          reads                   what it does
                                       exploration term
 ============= ======================= =================================================
 
-No agent reads the ground truth. The observation-only agents accept
-``env=None``; given an env they only read its *configuration* (the arena
-size, the observation's ``map_extent`` and ``std_scale``, the sensor's range
-and field of view) to convert the normalised observation into metres.
-``info_gain`` keeps a reference to ``env.unwrapped`` and reads its
-``filter`` (deep-copied for the rollouts), ``sensor``, ``motion``,
-``robot_config``, ``world_config.arena_size`` and
-``observation_config.map_extent`` -- never ``world``.
+No agent reads the ground truth. Every baseline is built for the env it acts
+in (``make_agent(name, env)``; ``None`` or an object that is not a
+``SeifExplore`` env raises ``TypeError``) and reads the observation through
+that env's own geometry (:class:`Geometry`: the inverse of the env's
+observation encoder, :class:`seif_gym.observation.ObservationDecoder`, and
+the sensor's range and field of view): the observation is normalised by the
+arena's size, so reading ``SeifExploreLarge``'s with another env's numbers
+would misplace everything. The observation-only agents read nothing else of
+the env (:data:`GEOMETRY_READS`). ``info_gain`` keeps a reference to
+``env.unwrapped`` and also reads its ``filter`` (deep-copied for the
+rollouts) and ``motion`` (:data:`INFO_GAIN_READS`) -- never ``world``.
 
 Observation geometry (see ``seif_gym.observation``): ``obs["pose"]`` is
 ``(x/h, y/h, cos θ, sin θ, σx/s, σy/s, σθ/π)`` with ``h`` half the arena side;
@@ -65,12 +68,22 @@ import math
 import time
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
+from types import SimpleNamespace
 from typing import Any, ClassVar
 
 import gymnasium as gym
 import numpy as np
 from numpy.typing import NDArray
 from scipy.ndimage import uniform_filter
+
+from seif_gym.observation import (
+    DIAGONAL_OVER_HALF,
+    BeliefEncoder,
+    BeliefRaster,
+    ObservationDecoder,
+    landmark_rows,
+    read_belief_map,
+)
 
 __all__ = [
     "Agent",
@@ -79,6 +92,8 @@ __all__ = [
     "RevisitAgent",
     "InfoGainAgent",
     "Geometry",
+    "GEOMETRY_READS",
+    "INFO_GAIN_READS",
     "read_belief_map",
     "landmark_rows",
     "BASELINES",
@@ -88,24 +103,20 @@ __all__ = [
 FloatArray = NDArray[np.float64]
 Observation = Mapping[str, np.ndarray]
 
-#: ``diagonal / h`` of a square arena: landmark offsets in ``obs["landmarks"]``
-#: times this are in units of ``h`` (half the arena side), like ``obs["pose"]``.
-_DIAGONAL_OVER_HALF = 2.0 * math.sqrt(2.0)
-
-
 # -- geometry --------------------------------------------------------------------------------------
+#: The env attributes :meth:`Geometry.from_env` reads (configuration, never the world).
+GEOMETRY_READS = ("encoder", "sensor", "robot_config")
+
+
 @dataclass(frozen=True)
 class Geometry:
-    """Configuration needed to read the normalised observation in metres.
+    """What an agent needs to read the observation in metres: the env's own numbers.
 
     Attributes
     ----------
-    arena_size : float
-        Side of the square arena, metres (``h = arena_size / 2``).
-    map_extent : float
-        Half-width of ``obs["belief_map"]``, metres.
-    std_scale : float
-        Divisor of the standard deviations in the observation.
+    decoder : seif_gym.observation.ObservationDecoder
+        The inverse of the env's observation encoder (the arena's size, the
+        belief map's extent, the standard deviations' scale).
     sensor_range : float
         Range of the sensor, metres.
     fov : float
@@ -114,49 +125,90 @@ class Geometry:
         Distance of one step at full forward speed (``max_speed·dt``), metres.
     """
 
-    arena_size: float = 20.0
-    map_extent: float = 8.0
-    std_scale: float = 1.0
-    sensor_range: float = 5.0
-    fov: float = math.pi
-    step_length: float = 0.25
+    decoder: ObservationDecoder
+    sensor_range: float
+    fov: float
+    step_length: float
+
+    @property
+    def arena_size(self) -> float:
+        """Side of the square arena, metres."""
+        return self.decoder.arena_size
 
     @property
     def half(self) -> float:
         """``h``, half the arena side, metres."""
-        return 0.5 * self.arena_size
+        return self.decoder.half_arena
+
+    @property
+    def map_extent(self) -> float:
+        """Half-width of ``obs["belief_map"]``, metres."""
+        return self.decoder.map_extent
+
+    @property
+    def std_scale(self) -> float:
+        """Divisor of the standard deviations in the observation."""
+        return self.decoder.std_scale
 
     @classmethod
-    def from_env(cls, env: Any | None, **overrides: float | None) -> Geometry:
-        """Read the geometry from ``env``'s configuration (never its world).
+    def of(cls, base: Any) -> Geometry:
+        """The geometry of one ``SeifExplore`` env (``env.unwrapped``, or a view with its attributes).
+
+        Raises
+        ------
+        TypeError
+            If ``base`` lacks one of :data:`GEOMETRY_READS` or its encoder is
+            not a :class:`~seif_gym.observation.BeliefEncoder`.
+        """
+        missing = [name for name in GEOMETRY_READS if getattr(base, name, None) is None]
+        if missing:
+            raise TypeError(f"env must be a SeifExplore env; {type(base).__name__} has no {', '.join(missing)}")
+        encoder, sensor, robot = base.encoder, base.sensor, base.robot_config
+        if not isinstance(encoder, BeliefEncoder):
+            raise TypeError(f"env must be a SeifExplore env; its encoder is a {type(encoder).__name__}")
+        return cls(encoder.decoder(), float(sensor.max_range), float(sensor.fov), float(robot.max_speed * robot.dt))
+
+    @classmethod
+    def from_env(cls, env: Any) -> Geometry:
+        """Read the geometry from the env the agent acts in (its configuration, never its world).
 
         Parameters
         ----------
-        env : gymnasium.Env or None
-            A ``SeifExplore`` env (any wrapper); ``None`` keeps the defaults
-            (those of ``SeifExplore-v0``).
-        **overrides
-            Explicit values (``None`` is ignored); they win over ``env``.
+        env : gymnasium.Env, vector env or sequence of envs
+            A ``SeifExplore`` env (any wrapper), a gymnasium or
+            Stable-Baselines3 vector env of them, or a list of them; every
+            sub-env must have the same geometry.
+
+        Raises
+        ------
+        TypeError
+            If ``env`` is ``None`` or not a ``SeifExplore`` env: reading its
+            observations with another env's numbers would misplace everything.
+        ValueError
+            If the sub-envs of a vector env differ in geometry.
         """
-        values: dict[str, float] = {}
-        base = _unwrapped(env)
-        if base is not None:
-            world_config = getattr(base, "world_config", None)
-            obs_config = getattr(base, "observation_config", None)
-            sensor = getattr(base, "sensor", None)
-            robot_config = getattr(base, "robot_config", None)
-            if world_config is not None:
-                values["arena_size"] = float(world_config.arena_size)
-            if obs_config is not None:
-                values["map_extent"] = float(obs_config.map_extent)
-                values["std_scale"] = float(obs_config.std_scale)
-            if sensor is not None:
-                values["sensor_range"] = float(sensor.max_range)
-                values["fov"] = float(sensor.fov)
-            if robot_config is not None:
-                values["step_length"] = float(robot_config.max_speed * robot_config.dt)
-        values.update({key: float(value) for key, value in overrides.items() if value is not None})
-        return cls(**values)
+        if env is None:
+            raise TypeError("env must be the SeifExplore env the agent acts in (its geometry decodes the observation), "
+                            "got None")  # fmt: skip
+        geometries = [cls.of(base) for base in _geometry_sources(env)]
+        if any(geometry != geometries[0] for geometry in geometries[1:]):
+            raise ValueError(f"env: the sub-envs differ in geometry ({geometries[0]} and others); one agent reads one")
+        return geometries[0]
+
+
+def _geometry_sources(env: Any) -> list[Any]:
+    """The base env(s) of ``env`` whose configuration the agent reads."""
+    base = _unwrapped(env)
+    if all(getattr(base, name, None) is not None for name in GEOMETRY_READS):
+        return [base]
+    if callable(getattr(env, "get_attr", None)) and isinstance(getattr(env, "num_envs", None), int):
+        # a Stable-Baselines3 VecEnv: the sub-envs' attributes, one namespace per sub-env
+        values = {name: env.get_attr(name) for name in GEOMETRY_READS}
+        return [SimpleNamespace(**{name: values[name][i] for name in GEOMETRY_READS}) for i in range(env.num_envs)]
+    envs = _env_list(env)
+    if len(envs) > 1 or (envs and envs[0] is not env):
+        return [_unwrapped(e) for e in envs]
+    raise TypeError(f"env must be a SeifExplore env (with {', '.join(GEOMETRY_READS)}), got {type(base).__name__}")
 
 
 def _unwrapped(env: Any | None) -> Any | None:
@@ -166,56 +218,12 @@ def _unwrapped(env: Any | None) -> Any | None:
     return getattr(env, "unwrapped", env)
 
 
-def read_belief_map(observation: Observation | np.ndarray) -> FloatArray:
-    """``obs["belief_map"]`` as ``float64`` in ``[0, 1]``.
-
-    The env's map is ``uint8`` in ``[0, 255]`` (divided by 255 here); a float
-    map (already in ``[0, 1]``, the format before ``uint8``) is only converted
-    to ``float64``. Accepts the observation dict or the map itself, single
-    ``(3, H, H)`` or batched ``(n_envs, 3, H, H)``.
-    """
-    raw = np.asarray(observation["belief_map"] if isinstance(observation, Mapping) else observation)
-    belief = np.asarray(raw, dtype=np.float64)
-    if raw.dtype == np.uint8:
-        belief /= 255.0
-    return belief
-
-
-def landmark_rows(landmarks: Observation | np.ndarray, batched: bool = False) -> FloatArray:
-    """``obs["landmarks"]`` as ``float64`` rows ``(forward, left, major, minor)``.
-
-    The env's entry is flat, ``(4K,)`` -> ``(K, 4)``; with ``batched=True``
-    (a leading ``n_envs`` axis, as a ``VecEnv`` returns) ``(n_envs, 4K)`` ->
-    ``(n_envs, K, 4)``. Already-shaped rows (``(K, 4)`` / ``(n_envs, K, 4)``)
-    come back unchanged. Accepts the observation dict or the entry itself.
-    """
-    raw = landmarks["landmarks"] if isinstance(landmarks, Mapping) else landmarks
-    rows = np.asarray(raw, dtype=np.float64)
-    if batched:
-        return rows.reshape(rows.shape[0], -1, 4)
-    return rows.reshape(-1, 4)
-
-
 def _heading(pose: np.ndarray) -> float:
     return math.atan2(float(pose[3]), float(pose[2]))
 
 
 def _wrap(angle: float) -> float:
     return (angle + math.pi) % (2.0 * math.pi) - math.pi
-
-
-class _Raster:
-    """Cell-centre coordinates (metres, robot frame) of a ``belief_map`` raster."""
-
-    def __init__(self, size: int, extent: float) -> None:
-        self.size = size
-        self.extent = extent
-        self.cell = 2.0 * extent / size
-        centres = extent - (np.arange(size) + 0.5) * self.cell
-        # forward varies along rows (axis 0), left along columns (axis 1)
-        self.forward, self.left = np.meshgrid(centres, centres, indexing="ij")
-        self.distance = np.hypot(self.forward, self.left)
-        self.bearing = np.arctan2(self.left, self.forward)
 
 
 # -- the interface ---------------------------------------------------------------------------------
@@ -231,8 +239,9 @@ class Agent(ABC):
     Parameters
     ----------
     env : gymnasium.Env or None
-        The env the agent acts in. Observation-only agents use it only for
-        its configuration (see :class:`Geometry`) and accept ``None``.
+        The env the agent acts in. The baselines require it (they read the
+        observation with its :class:`Geometry`); a trained model may not
+        need it.
     """
 
     #: Name under which :func:`make_agent` builds the agent.
@@ -325,8 +334,9 @@ class RandomAgent(Agent):
 
     Parameters
     ----------
-    env : gymnasium.Env or None
-        Unused.
+    env : gymnasium.Env
+        The ``SeifExplore`` env it acts in (checked, like every baseline's;
+        its action space is ``[-1, 1]^2``).
     seed : int or None
         Seed of the agent's ``numpy.random.Generator``; the same seed gives
         the same action sequence.
@@ -334,8 +344,9 @@ class RandomAgent(Agent):
 
     name = "random"
 
-    def __init__(self, env: Any | None = None, *, seed: int | None = None) -> None:
+    def __init__(self, env: Any, *, seed: int | None = None) -> None:
         super().__init__(env)
+        self.geometry = Geometry.from_env(env)
         self.seed = seed
         self.rng = np.random.default_rng(seed)
 
@@ -405,8 +416,8 @@ class FrontierAgent(Agent):
 
     Parameters
     ----------
-    env : gymnasium.Env or None
-        Only its configuration is read (:meth:`Geometry.from_env`).
+    env : gymnasium.Env
+        The env it acts in; only its :class:`Geometry` is read.
     turn_cost : float
         Metres of travel one radian of turning is worth.
     cost_scale : float
@@ -425,16 +436,13 @@ class FrontierAgent(Agent):
         Fraction of the commanded step below which a step counts as a bump.
     escape_steps : int
         Steps of turning in place after a bump.
-    arena_size, map_extent, std_scale : float, optional
-        Override the configuration read from ``env`` (defaults: those of
-        ``SeifExplore-v0``).
     """
 
     name = "frontier"
 
     def __init__(
         self,
-        env: Any | None = None,
+        env: Any,
         *,
         turn_cost: float = 1.5,
         cost_scale: float = 3.0,
@@ -446,12 +454,9 @@ class FrontierAgent(Agent):
         grid: int = 8,
         bump_fraction: float = 0.2,
         escape_steps: int = 6,
-        arena_size: float | None = None,
-        map_extent: float | None = None,
-        std_scale: float | None = None,
     ) -> None:
         super().__init__(env)
-        self.geometry = Geometry.from_env(env, arena_size=arena_size, map_extent=map_extent, std_scale=std_scale)
+        self.geometry = Geometry.from_env(env)
         self.turn_cost = float(turn_cost)
         self.cost_scale = float(cost_scale)
         self.window = int(window)
@@ -462,15 +467,25 @@ class FrontierAgent(Agent):
         self.grid = int(grid)
         self.bump_fraction = float(bump_fraction)
         self.escape_steps = int(escape_steps)
-        self._raster: _Raster | None = None
+        self._raster: BeliefRaster | None = None
 
     def _new_state(self) -> _ExploreMemory:
         return _ExploreMemory(visited=np.zeros((self.grid, self.grid), dtype=bool))
 
-    def raster(self, size: int) -> _Raster:
-        """Cell geometry of a ``size × size`` belief map (cached)."""
-        if self._raster is None or self._raster.size != size:
-            self._raster = _Raster(size, self.geometry.map_extent)
+    def raster(self, size: int) -> BeliefRaster:
+        """Cell geometry of the env's ``size × size`` belief map (cached).
+
+        Raises
+        ------
+        ValueError
+            If ``size`` is not the side of the env's belief map (an
+            observation of another env).
+        """
+        if self._raster is None:
+            self._raster = self.geometry.decoder.raster()
+        if size != self._raster.size:
+            raise ValueError(f"observation['belief_map'] is {size} cells wide, but the env's encoder makes "
+                             f"{self._raster.size}: an observation of another env?")  # fmt: skip
         return self._raster
 
     # -- pieces shared with revisit and info_gain ---------------------------------------------------
@@ -591,8 +606,8 @@ class RevisitAgent(FrontierAgent):
 
     Parameters
     ----------
-    env : gymnasium.Env or None
-        Only its configuration is read.
+    env : gymnasium.Env
+        The env it acts in; only its :class:`Geometry` is read.
     pose_std_threshold : float
         Position standard deviation (metres) that triggers a revisit.
     period : int
@@ -613,7 +628,7 @@ class RevisitAgent(FrontierAgent):
 
     def __init__(
         self,
-        env: Any | None = None,
+        env: Any,
         *,
         pose_std_threshold: float = 0.25,
         period: int = 100,
@@ -653,7 +668,7 @@ class RevisitAgent(FrontierAgent):
         pose = np.asarray(observation["pose"], dtype=np.float64)
         theta = _heading(pose)
         c, s = math.cos(theta), math.sin(theta)
-        forward, left = row[0] * _DIAGONAL_OVER_HALF, row[1] * _DIAGONAL_OVER_HALF  # units of h
+        forward, left = row[0] * DIAGONAL_OVER_HALF, row[1] * DIAGONAL_OVER_HALF  # units of h
         return np.array([pose[0] + c * forward - s * left, pose[1] + s * forward + c * left])
 
     def _act(self, observation: Observation, index: int) -> np.ndarray:
@@ -691,7 +706,7 @@ class _PlanMemory(_ExploreMemory):
 
 
 #: Names of the env attributes :class:`InfoGainAgent` reads (nothing else).
-INFO_GAIN_READS = ("filter", "sensor", "motion", "robot_config", "world_config", "observation_config")
+INFO_GAIN_READS = ("filter", "motion", *GEOMETRY_READS)
 
 
 class InfoGainAgent(FrontierAgent):
@@ -713,7 +728,7 @@ class InfoGainAgent(FrontierAgent):
        the ``frontier`` agent's target, which pulls the robot to unswept
        space beyond the horizon;
     4. ``walls`` = number of predicted poses closer than ``wall_margin`` to
-       the arena's side (from the estimate and ``world_config.arena_size``).
+       the arena's side (from the estimate and the geometry's arena size).
 
     Score ``gain + exploration_weight·explore − wall_penalty·walls``; the best
     arc is executed ``replan_every`` times (a bump, detected as by
@@ -769,8 +784,9 @@ class InfoGainAgent(FrontierAgent):
     ) -> None:
         envs = _env_list(env)
         if not envs:
-            raise ValueError("info_gain needs the env (it plans with the env's filter): make_agent('info_gain', env)")
+            raise TypeError("env must be the SeifExplore env(s) info_gain acts in (it plans with their filter), got None")
         super().__init__(envs[0], **kwargs)
+        self.geometry = Geometry.from_env(env)  # every env's: one geometry
         self.envs = [_unwrapped(e) for e in envs]
         if int(horizon) < 1 or int(replan_every) < 1:
             raise ValueError(f"horizon and replan_every must be positive, got {horizon}, {replan_every}")
@@ -858,7 +874,7 @@ class InfoGainAgent(FrontierAgent):
         if base.filter is None:
             raise RuntimeError("the env has no filter yet: reset it before asking info_gain for an action")
         scale = np.array([base.robot_config.max_speed, base.robot_config.max_turn_rate], dtype=np.float64)
-        half = 0.5 * float(base.world_config.arena_size)
+        half = self.geometry.half
         start = np.array(base.filter.pose, dtype=np.float64)
         before = self.uncertainty(base.filter)
         memory = self._state(index)
@@ -923,7 +939,7 @@ _REGISTRY: dict[str, type[Agent]] = {
 BASELINES: tuple[str, ...] = tuple(_REGISTRY)
 
 
-def make_agent(name: str, env: Any | None = None, **kwargs: Any) -> Agent:
+def make_agent(name: str, env: Any, **kwargs: Any) -> Agent:
     """Build the baseline ``name``.
 
     Parameters
@@ -931,16 +947,23 @@ def make_agent(name: str, env: Any | None = None, **kwargs: Any) -> Agent:
     name : str
         One of :data:`BASELINES`, or ``"rllib:PATH"``: a checkpoint of
         ``python -m agents.rllib_train`` (:class:`agents.rllib_agent.RLlibAgent`).
-    env : gymnasium.Env or None
-        The env the agent will act in. ``info_gain`` needs it (it plans with
-        the env's filter); the others only read its configuration and accept
-        ``None``.
+    env : gymnasium.Env, vector env or sequence of envs
+        The ``SeifExplore`` env(s) the agent will act in: every baseline
+        reads the observation with their :class:`Geometry`, and
+        ``info_gain`` plans with their filter.
     **kwargs
         Options of the agent's class (for example ``seed`` for ``random``).
 
     Returns
     -------
     Agent
+
+    Raises
+    ------
+    ValueError
+        If ``name`` is unknown.
+    TypeError
+        If ``env`` is not a ``SeifExplore`` env.
     """
     if isinstance(name, str) and name.startswith("rllib:"):  # an RLlib checkpoint (needs the optional ray extra)
         from agents.rllib_agent import RLlibAgent

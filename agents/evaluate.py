@@ -3,15 +3,18 @@
 .. code-block:: bash
 
     python -m agents.evaluate --agents random,frontier,revisit,info_gain,runs/ppo/model.zip \\
-        --episodes 10 --seed 1000 [--env SeifExplore-v1] [--env-kwargs '{"layout": "loop"}'] [--out DIR]
+        --episodes 10 --seed 1000 [--env SeifExplore-v1] [--env-kwargs '{"layout": "loop"}'] [--out DIR] \\
+        [--bootstrap 10000] [--quiet]
 
 Every agent runs ``N`` episodes on the seeds ``S, S+1, …, S+N−1`` (the same
 for every agent; ``env.reset(seed=s)`` fixes the landmark layout, the start
 and all noise of episode ``s``). An agent is a name of
 :data:`agents.BASELINES` (built with ``make_agent(name, env)``; ``random``
-is seeded with ``S``) or the path of a Stable-Baselines3 ``.zip`` (loaded
+is seeded with ``S``), the path of a Stable-Baselines3 ``.zip`` (loaded
 with ``PPO.load``; if a ``vecnormalize.pkl`` lies next to it, its observation
-normalisation is applied). Every agent acts with ``deterministic=True``.
+normalisation is applied; labelled by the file's stem, or by its folder's
+name for ``model.zip`` / ``best_model.zip``) or ``rllib:CHECKPOINT``; any of
+them may be labelled ``LABEL=SPEC``. Every agent acts with ``deterministic=True``.
 ``--env-kwargs`` is a JSON object passed to ``gym.make`` (it may hold
 ``max_episode_steps``).
 
@@ -58,11 +61,28 @@ the evaluation, never by the agents). Written to ``--out`` (default
     ended early keeps its last value). ``diverged`` is the fraction of
     diverged episodes.
 
+    ``paired`` compares every agent with the *best baseline* (the baseline of
+    lowest mean final map error) on the same seeds (:func:`paired_comparison`):
+    a dict with the keys :data:`PAIRED_KEYS`: ``metric``
+    (``final_map_error``), ``reference`` (the best baseline; ``null`` when no
+    agent is a baseline), ``confidence`` (0.95), ``bootstrap`` (resamples of
+    the optional bootstrap interval, 0 for none) and ``agents``: label -> the
+    keys :data:`PAIRED_STAT_KEYS` and ``verdict``, for every agent but the
+    reference. ``mean`` is the mean per-seed difference (agent minus
+    reference; negative is better), ``std`` its standard deviation
+    (``ddof=1``), ``ci95_low`` / ``ci95_high`` its Student-t interval,
+    ``bootstrap_ci95_low`` / ``bootstrap_ci95_high`` a percentile bootstrap
+    interval (``null`` without ``--bootstrap``), ``n`` the number of seeds.
+    ``verdict`` (:func:`paired_verdict`) is ``beats`` only when the t
+    interval lies below zero (``worse`` above it, ``tie (interval holds 0)``
+    otherwise).
+
 ``map_error.png``
     The mean map error over time per agent with its 95 % band.
 
-The Markdown table of the means ± CI half-widths is printed and also written
-to ``summary.md``.
+The Markdown table of the means ± CI half-widths and the table of the
+paired differences (:func:`paired_table`) are printed and also written to
+``summary.md``. Progress goes to stderr (``--quiet``: none).
 
 From Python: :func:`evaluate_agents` returns ``(rows, summary)`` as above,
 :func:`write_outputs` writes the files.
@@ -87,6 +107,7 @@ from scipy import stats
 
 import seif_gym  # noqa: F401  (registers the environments)
 from agents.baselines import BASELINES, Agent, make_agent
+from seif_gym.progress import Progress
 
 __all__ = [
     "RESULT_COLUMNS",
@@ -95,16 +116,29 @@ __all__ = [
     "AGENT_KEYS",
     "STAT_KEYS",
     "CURVE_KEYS",
+    "PAIRED_METRIC",
+    "PAIRED_KEYS",
+    "PAIRED_STAT_KEYS",
     "SCHEMA_VERSION",
     "SB3Agent",
+    "agent_label",
+    "agent_labels",
+    "check_agent_spec",
+    "build_agent",
+    "run_episode",
+    "mean_ci",
+    "paired_difference",
+    "paired_verdict",
+    "paired_comparison",
     "evaluate_agents",
     "write_outputs",
     "markdown_table",
+    "paired_table",
     "main",
 ]
 
-#: Version of the output schema below; bumped on any change of it.
-SCHEMA_VERSION = 1
+#: Version of the output schema below; bumped on any change of it (2: ``paired``).
+SCHEMA_VERSION = 2
 #: Columns of ``results.csv`` (one row per agent × episode), in order.
 RESULT_COLUMNS: tuple[str, ...] = (
     "agent",
@@ -133,13 +167,22 @@ SUMMARY_METRICS: tuple[str, ...] = (
     "decision_time_ms",
 )
 #: Top-level keys of ``summary.json``.
-SUMMARY_KEYS: tuple[str, ...] = ("schema_version", "env_id", "env_kwargs", "episodes", "seeds", "metrics", "agents")
+SUMMARY_KEYS: tuple[str, ...] = (
+    "schema_version", "env_id", "env_kwargs", "episodes", "seeds", "metrics", "agents", "paired",
+)  # fmt: skip
 #: Keys of ``summary.json["agents"][label]``.
 AGENT_KEYS: tuple[str, ...] = ("spec", "episodes", *SUMMARY_METRICS, "map_error_over_time")
 #: Keys of each metric's statistics.
 STAT_KEYS: tuple[str, ...] = ("mean", "std", "ci95_low", "ci95_high", "ci95_half_width", "n")
 #: Keys of ``map_error_over_time``.
 CURVE_KEYS: tuple[str, ...] = ("step", "mean", "ci95_low", "ci95_high")
+#: The metric of the paired comparison (lower is better).
+PAIRED_METRIC = "final_map_error"
+#: Keys of ``summary.json["paired"]``.
+PAIRED_KEYS: tuple[str, ...] = ("metric", "reference", "confidence", "bootstrap", "agents")
+#: Keys of a paired difference (:func:`paired_difference`); ``paired["agents"][label]`` adds ``verdict``.
+PAIRED_STAT_KEYS: tuple[str, ...] = ("mean", "std", "ci95_low", "ci95_high", "n", "bootstrap_ci95_low",
+                                     "bootstrap_ci95_high")  # fmt: skip
 
 #: Columns of the printed Markdown table: (metric, header).
 TABLE_COLUMNS: tuple[tuple[str, str], ...] = (
@@ -213,27 +256,72 @@ def _is_model_path(spec: str) -> bool:
     return spec.endswith(".zip")
 
 
-def _labels(specs: Sequence[str]) -> list[str]:
-    labels: list[str] = []
+def agent_label(spec: str) -> tuple[str, str]:
+    """``(label, target)`` of an agent spec.
+
+    Parameters
+    ----------
+    spec : str
+        ``LABEL=TARGET``, the path of an SB3 ``.zip`` (labelled by its stem,
+        or by its folder's name for ``model.zip`` and ``best_model.zip``), or
+        a baseline name / ``rllib:CHECKPOINT`` (labelled by itself).
+
+    Returns
+    -------
+    label : str
+    target : str
+        What :func:`build_agent` builds.
+    """
+    if not isinstance(spec, str) or not spec.strip():
+        raise ValueError(f"spec must be a non-empty agent spec, got {spec!r}")
+    if "=" in spec:
+        label, _, target = spec.partition("=")
+        return label.strip(), target.strip()
+    if _is_model_path(spec):
+        path = Path(spec)
+        folder = path.parent.name
+        return (folder if path.stem in ("model", "best_model") and folder else path.stem), spec
+    return spec, spec
+
+
+def agent_labels(specs: Sequence[str]) -> list[tuple[str, str]]:
+    """:func:`agent_label` of every spec, repeated labels made distinct (``frontier#2``)."""
+    seen: list[str] = []
+    result: list[tuple[str, str]] = []
     for spec in specs:
-        label = Path(spec).stem if _is_model_path(spec) else spec
+        label, target = agent_label(spec)
         base, k = label, 2
-        while label in labels:
+        while label in seen:
             label, k = f"{base}#{k}", k + 1
-        labels.append(label)
-    return labels
+        seen.append(label)
+        result.append((label, target))
+    return result
 
 
-def build_agent(spec: str, env: gym.Env, env_id: str, env_kwargs: Mapping[str, Any], seed: int) -> Agent:
-    """The agent of ``spec``: a baseline name, or the path of an SB3 ``.zip``."""
+def check_agent_spec(spec: str) -> None:
+    """Raise unless ``spec`` (a :func:`agent_label` target) names an agent :func:`build_agent` can build.
+
+    Raises
+    ------
+    FileNotFoundError
+        If an SB3 ``.zip`` does not exist.
+    ValueError
+        If ``spec`` is neither a baseline, a ``.zip`` nor ``rllib:CHECKPOINT``.
+    """
     if _is_model_path(spec):
         if not Path(spec).exists():
             raise FileNotFoundError(f"no model at {spec}")
-        return SB3Agent(spec, env, env_factory=lambda: gym.make(env_id, **env_kwargs))
-    if spec not in BASELINES and not spec.startswith("rllib:"):
+    elif spec not in BASELINES and not spec.startswith("rllib:"):
         raise ValueError(
             f"unknown agent {spec!r}: use one of {', '.join(BASELINES)}, the path of an SB3 .zip or rllib:CHECKPOINT"
         )
+
+
+def build_agent(spec: str, env: gym.Env, env_id: str, env_kwargs: Mapping[str, Any], seed: int) -> Agent:
+    """The agent of ``spec``: a baseline name, the path of an SB3 ``.zip`` or ``rllib:CHECKPOINT``."""
+    check_agent_spec(spec)
+    if _is_model_path(spec):
+        return SB3Agent(spec, env, env_factory=lambda: gym.make(env_id, **env_kwargs))
     return make_agent(spec, env, **({"seed": seed} if spec == "random" else {}))
 
 
@@ -309,6 +397,143 @@ def mean_ci(values: Sequence[float], confidence: float = 0.95) -> dict[str, floa
     }
 
 
+def paired_difference(values: Sequence[float], reference: Sequence[float], confidence: float = 0.95, *,
+                      bootstrap: int = 0, seed: int = 0) -> dict[str, Any]:  # fmt: skip
+    """Mean of the per-seed differences ``values − reference``, with its Student-t interval.
+
+    Parameters
+    ----------
+    values, reference : sequence of float
+        One number per seed, the same seeds in the same order.
+    confidence : float
+        Coverage of the intervals, in ``(0, 1)``.
+    bootstrap : int
+        Resamples of a percentile bootstrap interval of the mean difference
+        (0: none). It is reported beside the t interval, which alone decides
+        :func:`paired_verdict`.
+    seed : int
+        Seed of the bootstrap's generator (the interval is reproducible).
+
+    Returns
+    -------
+    dict
+        The keys :data:`PAIRED_STAT_KEYS`: ``mean``, ``std`` (of the
+        differences, ``ddof=1``), ``ci95_low``, ``ci95_high`` (the t interval;
+        ``None`` for one seed), ``n``, ``bootstrap_ci95_low`` and
+        ``bootstrap_ci95_high`` (``None`` without ``bootstrap``).
+
+    Raises
+    ------
+    ValueError
+        If the sequences differ in length or are empty, or ``confidence`` or
+        ``bootstrap`` is out of range.
+
+    Notes
+    -----
+    With ``d_i = values_i − reference_i`` over ``n`` seeds, the interval is
+    ``mean(d) ± t_{(1+c)/2, n−1} · s_d / sqrt(n)``: the paired comparison,
+    which removes the seed-to-seed spread both agents share (the seed fixes
+    the landmarks, the start and all noise).
+
+    Examples
+    --------
+    >>> d = paired_difference([1.0, 2.0, 4.0], [0.5, 1.0, 3.0])  # differences 0.5, 1, 1
+    >>> round(d["mean"], 4), round(d["std"], 4), d["n"]
+    (0.8333, 0.2887, 3)
+    """
+    a = np.asarray(values, dtype=np.float64)
+    b = np.asarray(reference, dtype=np.float64)
+    if a.shape != b.shape or a.ndim != 1 or a.size == 0:
+        raise ValueError(f"values and reference must be one number per seed, same length, got {a.shape} and {b.shape}")
+    if not 0.0 < confidence < 1.0:
+        raise ValueError(f"confidence must lie in (0, 1), got {confidence!r}")
+    if isinstance(bootstrap, bool) or not isinstance(bootstrap, (int, np.integer)) or bootstrap < 0:
+        raise ValueError(f"bootstrap must be a non-negative int, got {bootstrap!r}")
+    d = a - b
+    n = int(d.size)
+    mean = float(d.mean())
+    result: dict[str, Any] = dict.fromkeys(PAIRED_STAT_KEYS)
+    result.update(mean=mean, n=n)
+    if n >= 2:
+        std = float(d.std(ddof=1))
+        half = float(stats.t.ppf(0.5 + 0.5 * confidence, n - 1) * std / math.sqrt(n))
+        result.update(std=std, ci95_low=mean - half, ci95_high=mean + half)
+        if bootstrap:
+            means = d[np.random.default_rng(seed).integers(0, n, size=(int(bootstrap), n))].mean(axis=1)
+            low, high = np.quantile(means, [0.5 - 0.5 * confidence, 0.5 + 0.5 * confidence])
+            result.update(bootstrap_ci95_low=float(low), bootstrap_ci95_high=float(high))
+    return result
+
+
+def paired_verdict(paired: Mapping[str, Any]) -> str:
+    """``"beats"`` if the t interval of the difference lies below zero (lower is better), ``"worse"`` above it.
+
+    ``"tie (interval holds 0)"`` otherwise, ``"n/a (one seed)"`` without an
+    interval: an agent beats another only when the interval excludes zero.
+    """
+    low, high = paired["ci95_low"], paired["ci95_high"]
+    if low is None or high is None:
+        return "n/a (one seed)"
+    if high < 0.0:
+        return "beats"
+    if low > 0.0:
+        return "worse"
+    return "tie (interval holds 0)"
+
+
+def paired_comparison(rows: Sequence[Mapping[str, Any]], baselines: Sequence[str], metric: str = PAIRED_METRIC,
+                      confidence: float = 0.95, *, bootstrap: int = 0) -> dict[str, Any]:  # fmt: skip
+    """Every agent against the best baseline, by paired per-seed differences of ``metric``.
+
+    Parameters
+    ----------
+    rows : sequence of dict
+        :func:`evaluate_agents`' rows (``agent``, ``seed`` and ``metric``).
+    baselines : sequence of str
+        The labels that are baselines; the one of lowest mean ``metric`` is
+        the reference.
+    metric : str
+        A column of the rows where lower is better.
+    confidence : float
+        Coverage of the intervals.
+    bootstrap : int
+        Resamples of the optional bootstrap interval (:func:`paired_difference`).
+
+    Returns
+    -------
+    dict
+        The keys :data:`PAIRED_KEYS`: ``metric``, ``reference`` (``None``
+        without a baseline), ``confidence``, ``bootstrap`` and ``agents``:
+        label -> :func:`paired_difference` plus ``verdict``
+        (:func:`paired_verdict`), for every agent but the reference.
+
+    Raises
+    ------
+    ValueError
+        If the agents did not run on the same seeds.
+    """
+    per_agent: dict[str, dict[int, float]] = {}
+    for row in rows:
+        per_agent.setdefault(row["agent"], {})[int(row["seed"])] = float(row[metric])
+    means = {label: float(np.mean(list(values.values()))) for label, values in per_agent.items()}
+    candidates = [label for label in per_agent if label in set(baselines)]
+    reference = min(candidates, key=means.__getitem__) if candidates else None
+    result: dict[str, Any] = {"metric": metric, "reference": reference, "confidence": confidence,
+                              "bootstrap": int(bootstrap), "agents": {}}  # fmt: skip
+    if reference is None:
+        return result
+    seeds = sorted(per_agent[reference])
+    for label, values in per_agent.items():
+        if label == reference:
+            continue
+        if sorted(values) != seeds:
+            raise ValueError(f"rows: {label!r} and {reference!r} ran on different seeds; the comparison is paired")
+        paired = paired_difference([values[s] for s in seeds], [per_agent[reference][s] for s in seeds], confidence,
+                                   bootstrap=bootstrap)  # fmt: skip
+        result["agents"][label] = {**paired, "verdict": paired_verdict(paired)}
+    return result
+
+
 def _curve(traces: Sequence[Sequence[float]]) -> dict[str, list]:
     longest = max(len(trace) for trace in traces)
     padded = np.array([list(trace) + [trace[-1]] * (longest - len(trace)) for trace in traces], dtype=np.float64)
@@ -330,13 +555,15 @@ def evaluate_agents(
     env_kwargs: Mapping[str, Any] | None = None,
     *,
     verbose: bool = False,
+    bootstrap: int = 0,
 ) -> tuple[list[dict[str, Any]], dict[str, Any]]:
     """Run every agent on the seeds ``seed … seed + episodes − 1``.
 
     Parameters
     ----------
     agent_specs : sequence of str
-        Baseline names (:data:`agents.BASELINES`) and/or SB3 ``.zip`` paths.
+        Baseline names (:data:`agents.BASELINES`), SB3 ``.zip`` paths,
+        ``rllib:CHECKPOINT``, each optionally ``LABEL=SPEC`` (:func:`agent_label`).
     episodes : int
         Episodes per agent.
     seed : int
@@ -346,7 +573,9 @@ def evaluate_agents(
     env_kwargs : mapping, optional
         Keyword arguments of ``gym.make`` (may include ``max_episode_steps``).
     verbose : bool
-        Print one line per agent when it is done.
+        Progress on stderr: a bar over all episodes and one line per agent.
+    bootstrap : int
+        Resamples of the bootstrap interval of the paired differences (0: t interval only).
 
     Returns
     -------
@@ -365,28 +594,35 @@ def evaluate_agents(
     seeds = [int(seed) + k for k in range(int(episodes))]
     rows: list[dict[str, Any]] = []
     agents_summary: dict[str, Any] = {}
-    for spec, label in zip(agent_specs, _labels(agent_specs)):
-        env = gym.make(env_id, **env_kwargs)
-        try:
-            agent = build_agent(spec, env, env_id, env_kwargs, int(seed))
-            started = time.perf_counter()
-            agent_rows, traces = [], []
-            for episode, episode_seed in enumerate(seeds):
-                row, trace = run_episode(agent, env, episode_seed)
-                agent_rows.append({"agent": label, "episode": episode, **row})
-                traces.append(trace)
-        finally:
-            env.close()
-        rows.extend(agent_rows)
-        entry: dict[str, Any] = {"spec": spec, "episodes": len(seeds)}
-        for metric in SUMMARY_METRICS:
-            entry[metric] = mean_ci([row[metric] for row in agent_rows])
-        entry["map_error_over_time"] = _curve(traces)
-        agents_summary[label] = entry
-        if verbose:
+    labelled = agent_labels(agent_specs)
+    for _, target in labelled:
+        check_agent_spec(target)  # before any episode runs
+    baselines = [label for label, target in labelled if target in BASELINES]
+    progress = Progress(len(labelled) * len(seeds), f"{env_id}", enabled=verbose, unit="episodes")
+    with progress:
+        for spec, (label, target) in zip(agent_specs, labelled):
+            env = gym.make(env_id, **env_kwargs)
+            try:
+                agent = build_agent(target, env, env_id, env_kwargs, int(seed))
+                started = time.perf_counter()
+                agent_rows, traces = [], []
+                for episode, episode_seed in enumerate(seeds):
+                    row, trace = run_episode(agent, env, episode_seed)
+                    agent_rows.append({"agent": label, "episode": episode, **row})
+                    traces.append(trace)
+                    progress.update(1, f"{label} seed {episode_seed}: {row['final_map_error']:.3f} m")
+            finally:
+                env.close()
+            rows.extend(agent_rows)
+            entry: dict[str, Any] = {"spec": spec, "episodes": len(seeds)}
+            for metric in SUMMARY_METRICS:
+                entry[metric] = mean_ci([row[metric] for row in agent_rows])
+            entry["map_error_over_time"] = _curve(traces)
+            agents_summary[label] = entry
             planning = getattr(agent, "mean_planning_time", None)
             extra = f", {1e3 * planning:.2f} ms per plan" if planning is not None and math.isfinite(planning) else ""
-            print(f"{label}: {len(seeds)} episodes in {time.perf_counter() - started:.1f} s{extra}", file=sys.stderr)
+            progress.write(f"{label}: {len(seeds)} episodes in {time.perf_counter() - started:.1f} s, final map error "
+                           f"{entry['final_map_error']['mean']:.3f} m{extra}")  # fmt: skip
     summary = {
         "schema_version": SCHEMA_VERSION,
         "env_id": env_id,
@@ -395,6 +631,7 @@ def evaluate_agents(
         "seeds": seeds,
         "metrics": list(SUMMARY_METRICS),
         "agents": agents_summary,
+        "paired": paired_comparison(rows, baselines, bootstrap=bootstrap),
     }
     return rows, summary
 
@@ -415,6 +652,44 @@ def markdown_table(summary: Mapping[str, Any]) -> str:
         digits = {"length": 1, "wall_contacts": 1, "landmarks_mapped": 1, "decision_time_ms": 2, "diverged": 2}
         cells = [_format(entry[metric], digits.get(metric, 3)) for metric, _ in TABLE_COLUMNS]
         lines.append("| " + " | ".join([label, *cells]) + " |")
+    return "\n".join(lines)
+
+
+def _signed(value: float | None, digits: int = 3) -> str:
+    return "n/a" if value is None else f"{value:+.{digits}f}"
+
+
+def paired_table(summary: Mapping[str, Any], digits: int = 3) -> str:
+    """The paired comparison of ``summary`` (:func:`paired_comparison`) as a sentence and a Markdown table.
+
+    Empty when there is no reference (no baseline among the agents).
+    """
+    paired = summary.get("paired") or {}
+    reference = paired.get("reference")
+    if reference is None or not paired.get("agents"):
+        return ""
+    seeds = summary["seeds"]
+    level = f"{100 * paired['confidence']:g}%"
+    bootstrap = int(paired.get("bootstrap") or 0)
+    lines = [
+        f"Paired per-seed differences of {paired['metric'].replace('_', ' ')} to the best baseline, {reference} "
+        f"(every agent on the same seeds {seeds[0]}..{seeds[-1]}; mean difference with its {level} Student-t interval"
+        + (f", and a {level} percentile bootstrap interval of {bootstrap} resamples" if bootstrap else "")
+        + "; negative is better; an agent beats the reference only when the t interval lies below 0)",
+        "",
+        "| agent | mean difference | t interval | " + ("bootstrap interval | " if bootstrap else "") + "verdict |",
+        "|---|--:|--:|" + ("--:|" if bootstrap else "") + "---|",
+    ]
+    for label, entry in paired["agents"].items():
+        interval = "n/a" if entry["ci95_low"] is None else (
+            f"[{_signed(entry['ci95_low'], digits)}, {_signed(entry['ci95_high'], digits)}]")  # fmt: skip
+        cells = [label, _signed(entry["mean"], digits), interval]
+        if bootstrap:
+            cells.append("n/a" if entry["bootstrap_ci95_low"] is None else
+                         f"[{_signed(entry['bootstrap_ci95_low'], digits)}, {_signed(entry['bootstrap_ci95_high'], digits)}]")  # fmt: skip
+        verdict = entry["verdict"]
+        cells.append(f"{verdict} {reference}" if verdict in ("beats",) else verdict)
+        lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines)
 
 
@@ -440,7 +715,8 @@ def write_outputs(rows: Sequence[Mapping[str, Any]], summary: Mapping[str, Any],
         for row in rows:
             writer.writerow({column: row[column] for column in RESULT_COLUMNS})
     paths["json"].write_text(json.dumps(summary, indent=2, allow_nan=False) + "\n")
-    paths["markdown"].write_text(markdown_table(summary) + "\n")
+    paired = paired_table(summary)
+    paths["markdown"].write_text(markdown_table(summary) + "\n" + (f"\n{paired}\n" if paired else ""))
     plot_map_error(summary, paths["plot"])
     return paths
 
@@ -485,12 +761,16 @@ def _parser() -> argparse.ArgumentParser:
     parser.add_argument("--env", default="SeifExplore-v1", help="registered env id (default SeifExplore-v1)")
     parser.add_argument("--env-kwargs", default="{}", help="JSON object of gym.make keyword arguments")
     parser.add_argument("--out", default="eval", help="output folder (default ./eval)")
+    parser.add_argument("--bootstrap", type=int, default=0, metavar="N",
+                        help="also a percentile bootstrap interval of the paired differences, N resamples (default 0: none)")  # fmt: skip
+    parser.add_argument("--quiet", action="store_true", help="no progress on stderr")
     return parser
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Command-line entry point; returns the exit status."""
-    args = _parser().parse_args(argv)
+    parser = _parser()
+    args = parser.parse_args(argv)
     try:
         env_kwargs = json.loads(args.env_kwargs)
     except json.JSONDecodeError as error:
@@ -498,12 +778,25 @@ def main(argv: Sequence[str] | None = None) -> int:
     if not isinstance(env_kwargs, dict):
         raise SystemExit("--env-kwargs must be a JSON object")
     specs = [spec.strip() for spec in args.agents.split(",") if spec.strip()]
+    if args.episodes < 1:
+        parser.error(f"--episodes must be positive, got {args.episodes}")
+    if args.bootstrap < 0:
+        parser.error(f"--bootstrap must be >= 0, got {args.bootstrap}")
+    try:
+        for _, target in agent_labels(specs):
+            check_agent_spec(target)
+    except (ValueError, FileNotFoundError) as error:
+        parser.error(str(error))
     started = time.perf_counter()
-    rows, summary = evaluate_agents(specs, args.episodes, args.seed, args.env, env_kwargs, verbose=True)
+    rows, summary = evaluate_agents(specs, args.episodes, args.seed, args.env, env_kwargs, verbose=not args.quiet,
+                                    bootstrap=args.bootstrap)  # fmt: skip
     paths = write_outputs(rows, summary, args.out)
     print(f"{args.env}, {args.episodes} episodes per agent, seeds {args.seed}..{args.seed + args.episodes - 1}; "
           "mean ± 95% CI half-width\n")  # fmt: skip
     print(markdown_table(summary))
+    paired = paired_table(summary)
+    if paired:
+        print(f"\n{paired}")
     print(f"\nwrote {', '.join(str(path) for path in paths.values())} in {time.perf_counter() - started:.1f} s")
     return 0
 

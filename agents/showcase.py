@@ -3,28 +3,36 @@
 Usage::
 
     python -m agents.showcase [--episodes 100] [--seed 1000000] [--env SeifExplore-v1] [--out showcase]
+        [--bootstrap N] [--quiet]
 
 Runs :func:`agents.evaluate.evaluate_agents` for ``random``, ``frontier``,
 ``revisit``, ``info_gain`` and the shipped PPO policy
 (:data:`SHIPPED_POLICY`, trained on ``SeifExplore-v0``) on the same held-out
 seeds of ``--env`` (default the newest, ``SeifExplore-v1``; training never
-resets with these seeds), prints the
-table (means with 95% confidence intervals), writes ``results.csv``,
+resets with these seeds), prints the table (means with 95% confidence
+intervals) and the paired comparison with the best baseline (the mean
+per-seed difference of the final map error with its 95% Student-t interval,
+:func:`agents.evaluate.paired_comparison`; the policy *beats* the best
+baseline only when that interval lies below zero), writes ``results.csv``,
 ``summary.json``, ``summary.md`` and ``map_error.png`` to ``--out``, and
-records one episode of the shipped policy as ``episode.gif``.
+records one episode of the shipped policy as ``episode.gif``. Progress goes
+to stderr (``--quiet``: none).
 """
 
 from __future__ import annotations
 
 import argparse
 import time
+from collections.abc import Mapping
 from pathlib import Path
+from typing import Any
 
 import gymnasium as gym
 
 import seif_gym  # noqa: F401  (registers the envs)
 from agents import BASELINES
-from agents.evaluate import SB3Agent, evaluate_agents, markdown_table, write_outputs
+from agents.evaluate import SB3Agent, evaluate_agents, markdown_table, paired_table, write_outputs
+from seif_gym.progress import Progress
 
 SHIPPED_POLICY = Path(__file__).parent / "policies" / "ppo_seif_explore.zip"
 #: The env the main job evaluates on (the shipped policy was trained on ``SeifExplore-v0``).
@@ -33,8 +41,12 @@ ENV_ID = "SeifExplore-v1"
 HELD_OUT_SEED = 1_000_000
 
 
-def record_gif(policy_path: Path, path: Path, seed: int, every: int = 4, size: int = 400, env_id: str = ENV_ID) -> Path:
-    """One episode of the policy at ``policy_path`` on ``env_id`` as an animated GIF (every ``every``-th frame)."""
+def record_gif(policy_path: Path, path: Path, seed: int, every: int = 4, size: int = 400, env_id: str = ENV_ID,
+               *, verbose: bool = False) -> Path:  # fmt: skip
+    """One episode of the policy at ``policy_path`` on ``env_id`` as an animated GIF (every ``every``-th frame).
+
+    With ``verbose``, a progress bar over the episode's steps on stderr.
+    """
     from PIL import Image
 
     env = gym.make(env_id, render_mode="rgb_array")
@@ -42,17 +54,42 @@ def record_gif(policy_path: Path, path: Path, seed: int, every: int = 4, size: i
     observation, _ = env.reset(seed=seed)
     frames = [env.render()]
     done, step = False, 0
-    while not done:
-        action, _ = agent.predict(observation, deterministic=True)
-        observation, _, terminated, truncated, _ = env.step(action)
-        done = terminated or truncated
-        step += 1
-        if step % every == 0 or done:
-            frames.append(env.render())
+    limit = env.spec.max_episode_steps if env.spec is not None and env.spec.max_episode_steps else 1
+    with Progress(int(limit), f"{path.name}", enabled=verbose, unit="steps") as progress:
+        while not done:
+            action, _ = agent.predict(observation, deterministic=True)
+            observation, _, terminated, truncated, _ = env.step(action)
+            done = terminated or truncated
+            step += 1
+            progress.update(1)
+            if step % every == 0 or done:
+                frames.append(env.render())
     env.close()
     images = [Image.fromarray(frame).resize((size, size), Image.LANCZOS) for frame in frames]
     images[0].save(path, save_all=True, append_images=images[1:], duration=80, loop=0, optimize=True)
     return path
+
+
+def verdict_sentence(summary: Mapping[str, Any], label: str) -> str:
+    """One sentence: whether agent ``label`` beats the best baseline by the paired comparison of ``summary``."""
+    paired = summary["paired"]
+    reference = paired["reference"]
+    mean = summary["agents"][label]["final_map_error"]["mean"]
+    if reference is None or label not in paired["agents"]:
+        return f"{label}: final map error {mean:.3f} m (no baseline to compare with)."
+    entry = paired["agents"][label]
+    reference_mean = summary["agents"][reference]["final_map_error"]["mean"]
+    interval = ("no interval (one seed)" if entry["ci95_low"] is None else
+                f"95% t interval [{entry['ci95_low']:+.3f}, {entry['ci95_high']:+.3f}] m over {entry['n']} seeds")  # fmt: skip
+    if entry["verdict"] == "beats":
+        outcome = "beats"
+    elif entry["verdict"] == "worse":
+        outcome = "is worse than"
+    else:
+        outcome = "does not beat"
+    reason = "" if entry["verdict"] in ("beats", "worse") else " (the interval holds 0)"
+    return (f"{label} ({mean:.3f} m) {outcome} the best baseline, {reference} ({reference_mean:.3f} m){reason}: "
+            f"paired per-seed difference of the final map error {entry['mean']:+.3f} m, {interval}.")  # fmt: skip
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -62,26 +99,34 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--policy", default=str(SHIPPED_POLICY), help="SB3 .zip of the policy to show")
     parser.add_argument("--env", default=ENV_ID, help="registered env id (default %(default)s)")
     parser.add_argument("--out", default="showcase")
+    parser.add_argument("--bootstrap", type=int, default=0, metavar="N",
+                        help="also a percentile bootstrap interval of the paired differences, N resamples")  # fmt: skip
+    parser.add_argument("--quiet", action="store_true", help="no progress on stderr")
     args = parser.parse_args(argv)
+    if args.episodes < 1:
+        parser.error(f"--episodes must be positive, got {args.episodes}")
+    if args.bootstrap < 0:
+        parser.error(f"--bootstrap must be >= 0, got {args.bootstrap}")
+    if not Path(args.policy).is_file():
+        parser.error(f"--policy: no model at {args.policy}")
 
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     specs = [*BASELINES, args.policy]
     started = time.perf_counter()
-    rows, summary = evaluate_agents(specs, episodes=args.episodes, seed=args.seed, env_id=args.env, env_kwargs={})
+    rows, summary = evaluate_agents(specs, episodes=args.episodes, seed=args.seed, env_id=args.env, env_kwargs={},
+                                    verbose=not args.quiet, bootstrap=args.bootstrap)  # fmt: skip
     write_outputs(rows, summary, out)
     print(f"{args.env}, {args.episodes} episodes per agent on seeds {args.seed}..{args.seed + args.episodes - 1} "
-          f"({time.perf_counter() - started:.0f} s)\n")  # fmt: skip
+          f"({time.perf_counter() - started:.0f} s); mean ± 95% CI half-width\n")  # fmt: skip
     print(markdown_table(summary))
-    labels = list(summary["agents"])
-    policy_label = labels[-1]
-    errors = {label: summary["agents"][label]["final_map_error"]["mean"] for label in labels}
-    best_baseline = min((label for label in labels if label != policy_label), key=errors.get)
-    verdict = "beats" if errors[policy_label] < errors[best_baseline] else "does not beat"
-    print(f"\n{policy_label} ({errors[policy_label]:.3f} m) {verdict} the best baseline, "
-          f"{best_baseline} ({errors[best_baseline]:.3f} m), on mean final map error.")  # fmt: skip
-    gif = record_gif(Path(args.policy), out / "episode.gif", seed=args.seed, env_id=args.env)
-    print(f"\nwrote {', '.join(str(out / name) for name in ('results.csv', 'summary.json', 'map_error.png'))} and {gif}")
+    paired = paired_table(summary)
+    if paired:
+        print(f"\n{paired}")
+    print(f"\n{verdict_sentence(summary, list(summary['agents'])[-1])}")
+    gif = record_gif(Path(args.policy), out / "episode.gif", seed=args.seed, env_id=args.env, verbose=not args.quiet)
+    print(f"\nwrote {', '.join(str(out / name) for name in ('results.csv', 'summary.json', 'summary.md', 'map_error.png'))} "
+          f"and {gif}")  # fmt: skip
 
 
 if __name__ == "__main__":

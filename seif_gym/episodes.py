@@ -54,7 +54,8 @@ import gymnasium as gym
 import numpy as np
 from numpy.typing import NDArray
 
-from seif_gym.envs.explore import SeifExploreEnv, filter_map_error  # the env's E_t, reused for identical bits
+from seif_gym.envs.explore import SeifExploreEnv
+from seif_gym.metrics import filter_map_error  # the env's E_t: identical bits
 from seif_gym.slam.association import AssociationAudit, make_associator
 from seif_gym.slam import FILTERS, RangeBearingSensor, SlamFilter, VelocityMotionModel
 

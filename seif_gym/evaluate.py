@@ -1,28 +1,31 @@
-"""Filter robustness harness: ``python -m seif_gym.evaluate``.
+"""Filter robustness harness: recorded episodes replayed through every filter, and scored.
 
 .. code-block:: bash
 
-    python -m seif_gym.evaluate --policies random,frontier,revisit,ppo=runs/ppo/model.zip \\
+    # record with policies, then score (the agents package: it owns the policies)
+    python -m agents.robustness --policies random,frontier,revisit,ppo=runs/ppo/model.zip \\
         --layouts uniform,loop --seeds 5 --seed 0 --steps 300 --out eval/robustness
+    # score episodes recorded before (this module: nothing but the library)
+    python -m seif_gym.evaluate --episodes eval/robustness/episodes --filters seif-k8,eseif,ekf --out eval/rescored
 
-For every (policy, layout, seed) one episode of ``--env`` (default
-``SeifExplore-v0``, on which ``docs/robustness.md`` was measured; pass
-``--env SeifExplore-v1`` for the current filters; with ``layout=`` the layout and ``max_episode_steps=``
-``--steps``) is **recorded once** with :class:`~seif_gym.episodes.EpisodeRecorder`
-(the policy acts on the env's own SEIF, ``max_active=8``, exactly as it
-would in training) and then **replayed** through every filter of
-``--filters`` with :func:`seif_gym.episodes.replay`: all filters see the
-identical executed controls and noisy measurements, so differences between
-them are differences of the filters alone.
+An episode (:class:`~seif_gym.episodes.Episode`) of a ``SeifExplore`` env is
+**recorded once** with :class:`~seif_gym.episodes.EpisodeRecorder` (the
+policy acts on the env's own SEIF, ``max_active=8``, exactly as it would in
+training) and then **replayed** through every filter of ``--filters`` with
+:func:`seif_gym.episodes.replay`: all filters see the identical executed
+controls and noisy measurements, so differences between them are
+differences of the filters alone. This module replays and scores
+(:func:`score_replay`, :func:`score_episode`, :func:`evaluate_episodes`),
+aggregates (:func:`summary_tables`) and writes the outputs
+(:func:`write_outputs`); the policy-driven recording is
+:mod:`agents.robustness` (``docs/robustness.md`` was measured with it on
+``SeifExplore-v0``). ``seif_gym`` never imports ``agents``.
 
-Policies (``--policies``, comma separated): the baselines of
-:data:`agents.BASELINES` (``random``, ``frontier``, ``revisit``,
-``info_gain``), or the path of a Stable-Baselines3 ``.zip`` (loaded with
-:class:`agents.evaluate.SB3Agent`, with ``vecnormalize.pkl`` beside it when
-present), optionally labelled ``LABEL=PATH.zip``. Every policy acts with
-``deterministic=True``; ``random`` is seeded with the episode seed. The
-``agents`` package is imported only here, lazily: ``seif_gym`` does not
-depend on it.
+``python -m seif_gym.evaluate --episodes PATH ...`` scores saved episodes
+(``.npz`` files of :meth:`Episode.save <seif_gym.episodes.Episode.save>`,
+or folders of them). A row's ``policy`` is the file's name without the
+``_LAYOUT_SEED`` that :mod:`agents.robustness` appends; its ``layout`` and
+``seed`` come from the episode.
 
 Filters (``--filters``, comma separated; default :func:`default_filters`):
 
@@ -47,6 +50,8 @@ Collected per step by the ``callback`` of :func:`~seif_gym.episodes.replay`
 with the heading error wrapped to ``[-π, π)``.
 
 * **pose error** ``‖e_xy‖`` (m) and the absolute heading error.
+The metrics themselves live in :mod:`seif_gym.metrics`.
+
 * **pose NEES** ``eᵀ P⁻¹ e`` (global frame, 3 dof) with the filter's
   *exact* marginal pose covariance ``P`` (``filter.pose_covariance``: a sparse
   solve for the information filters; never the SEIF's constant-time
@@ -81,9 +86,10 @@ with the heading error wrapped to ``[-π, π)``.
   are scored on the same, shorter data.
 * **time per step**: :attr:`~seif_gym.episodes.ReplayResult.step_seconds`
   (one ``predict`` + ``update``; metric computations are not timed). Every
-  filter is run once on a short warm-up episode first (numba compilation).
-  The command line pins OpenBLAS to one thread (:func:`limit_blas_threads`):
-  with these small matrices threads only add contention.
+  filter is run once on a short warm-up episode first (:func:`warm_up`:
+  numba compilation). The command lines pin BLAS to one thread
+  (:func:`seif_gym.threads.limit_blas_threads`): with these small matrices
+  threads only add contention.
 
 Outputs (``--out``)
 -------------------
@@ -112,10 +118,11 @@ Outputs (``--out``)
     The arguments of the run.
 ``episodes/``
     The recorded episodes (``POLICY_LAYOUT_SEED.npz``, :meth:`Episode.save`),
-    unless ``--no-save-episodes``.
+    unless ``--no-save-episodes`` (:mod:`agents.robustness` only).
 
-From Python: :func:`evaluate` returns the rows and the per-run series,
-:func:`write_outputs` writes the files, :func:`summary_tables` the tables.
+From Python: :func:`evaluate_episodes` returns the rows and the per-run
+series of labelled episodes, :func:`write_outputs` writes the files,
+:func:`summary_tables` the tables.
 """
 
 from __future__ import annotations
@@ -127,46 +134,47 @@ import math
 import re
 import sys
 import time
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import gymnasium as gym
 import numpy as np
-import scipy.linalg
 from scipy.stats import chi2
 
 import seif_gym  # noqa: F401  (registers the environments)
+from seif_gym.envs.explore import SeifExploreEnv
 from seif_gym.episodes import Episode, EpisodeRecorder, replay
+from seif_gym.metrics import CHI2_975_3DOF, MIN_RELATIVE_LANDMARKS, _map_nees, pose_nees
+from seif_gym.progress import Progress
 from seif_gym.slam import FILTERS
 from seif_gym.slam.models import wrap_angle
-from seif_gym.slam.simulation import pose_nees
+from seif_gym.threads import limit_blas_threads
+from seif_gym.world import LAYOUTS
 
 __all__ = [
     "RESULT_COLUMNS",
     "COLUMN_DOCS",
     "TIMESERIES_KEYS",
     "LAYOUTS",
-    "DEFAULT_POLICIES",
     "FilterSpec",
     "default_filters",
     "parse_filter",
+    "parse_filters",
     "score_replay",
-    "record_episode",
-    "evaluate",
+    "score_episode",
+    "warm_up",
+    "evaluate_episodes",
+    "load_episodes",
     "write_outputs",
     "summary_tables",
     "limit_blas_threads",
     "main",
 ]
 
-#: Layouts of ``SeifExploreEnv`` (``layout=``).
-LAYOUTS: tuple[str, ...] = ("uniform", "loop", "clustered")
-#: Policies of a run without ``--policies``.
-DEFAULT_POLICIES: tuple[str, ...] = ("random", "frontier", "revisit", "info_gain")
 #: The relative NEES's anchor-free definition needs at least this many mapped landmarks.
-_MIN_RELATIVE = 2
+_MIN_RELATIVE = MIN_RELATIVE_LANDMARKS
 
 #: ``results.csv`` column -> meaning (the order is :data:`RESULT_COLUMNS`).
 COLUMN_DOCS: dict[str, str] = {
@@ -276,32 +284,7 @@ def parse_filter(spec: str | FilterSpec) -> FilterSpec:
     )
 
 
-# -- metrics of one replay --------------------------------------------------------------------------
-def _nees(error: np.ndarray, cov: np.ndarray) -> float:
-    """``eᵀ P⁻¹ e`` by Cholesky; ``inf`` if ``P`` is not positive definite."""
-    try:
-        lower = scipy.linalg.cholesky(cov, lower=True, check_finite=False)
-    except (np.linalg.LinAlgError, ValueError):
-        return math.inf
-    y = scipy.linalg.solve_triangular(lower, error, lower=True, check_finite=False)
-    return float(y @ y)
-
-
-def _map_nees(truth: np.ndarray, estimate: np.ndarray, cov: np.ndarray) -> tuple[float, float]:
-    """Joint ``(global, relative)`` NEES of the mapped landmarks (``cov``: their ``2m × 2m`` covariance)."""
-    error = (truth - estimate).reshape(-1)
-    global_nees = _nees(error, cov)
-    m = len(truth)
-    if m < _MIN_RELATIVE:
-        return global_nees, math.nan
-    # d_i = m_i - m_0 for i >= 1: A = [-1 | I] per coordinate
-    relative_error = error[2:] - np.tile(error[:2], m - 1)
-    c00, c0r, crr = cov[:2, :2], cov[:2, 2:], cov[2:, 2:]
-    tiled = np.tile(c0r, (m - 1, 1))  # rows: (m-1)*2 copies of the anchor's cross-covariance
-    relative_cov = crr - tiled - tiled.T + np.tile(c00, (m - 1, m - 1))
-    return global_nees, _nees(relative_error, 0.5 * (relative_cov + relative_cov.T))
-
-
+# -- metrics of one replay (the definitions: seif_gym.metrics) --------------------------------------
 def score_replay(episode: Episode, spec: str | FilterSpec, *, nees_every: int = 1) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
     """Replay ``episode`` through ``spec`` and score it.
 
@@ -371,7 +354,7 @@ def score_replay(episode: Episode, spec: str | FilterSpec, *, nees_every: int = 
         "pose_rmse": math.sqrt(float(np.mean(curves["pose_error"] ** 2))),
         "heading_rmse_deg": math.degrees(math.sqrt(float(np.mean(curves["heading_error"] ** 2)))),
         "anees_pose": float(np.mean(pose_nees_steps)),
-        "pose_nees_above": float(np.mean(pose_nees_steps > chi2.ppf(0.975, 3))),
+        "pose_nees_above": float(np.mean(pose_nees_steps > CHI2_975_3DOF)),
         "anees_relative": relative_total / relative_count if relative_count else math.nan,
         "anees_map": map_total / map_count if map_count else math.nan,
         "mean_pose_sigma": float(np.mean(curves["pose_sigma"][1:])) if steps else float(curves["pose_sigma"][0]),
@@ -385,59 +368,78 @@ def score_replay(episode: Episode, spec: str | FilterSpec, *, nees_every: int = 
     return row, {**curves, "step_seconds": seconds}
 
 
-# -- policies and recording -------------------------------------------------------------------------
-def _policy_label(spec: str) -> tuple[str, str]:
-    """``(label, spec)`` of ``LABEL=PATH.zip``, ``PATH.zip`` or a baseline name."""
-    if "=" in spec:
-        label, _, path = spec.partition("=")
-        return label.strip(), path.strip()
-    if spec.endswith(".zip"):
-        path = Path(spec)
-        return (path.parent.name if path.stem in ("model", "best_model") and path.parent.name else path.stem), spec
-    return spec, spec
+# -- episodes ---------------------------------------------------------------------------------------
+def score_episode(episode: Episode, filters: Sequence[str | FilterSpec], *, policy: str,
+                  nees_every: int = 1) -> tuple[list[dict[str, Any]], list[dict[str, np.ndarray]]]:  # fmt: skip
+    """Replay ``episode`` through every filter of ``filters``: one row (and one series) per filter.
+
+    Parameters
+    ----------
+    episode : Episode
+        A recorded episode.
+    filters : sequence of str or FilterSpec
+        The filters (:func:`parse_filter`).
+    policy : str
+        The ``policy`` column (who drove the episode).
+    nees_every : int
+        Steps between computations of the full covariance.
+
+    Returns
+    -------
+    rows : list of dict
+        Keys :data:`RESULT_COLUMNS`; ``layout`` and ``seed`` from the episode
+        (``seed`` -1 for an episode not started with a seed).
+    series : list of dict
+        The per-step curves of each row (:func:`score_replay`).
+    """
+    if not isinstance(episode, Episode):
+        raise TypeError(f"episode must be an Episode, got {type(episode).__name__}")
+    layout = str(episode.config.get("layout", ""))
+    seed = -1 if episode.seed is None else int(episode.seed)
+    rows: list[dict[str, Any]] = []
+    series: list[dict[str, np.ndarray]] = []
+    for spec in filters:
+        spec = parse_filter(spec)
+        row, curves = score_replay(episode, spec, nees_every=nees_every)
+        rows.append({"policy": str(policy), "layout": layout, "seed": seed, "filter": spec.label, **row})
+        series.append(curves)
+    return rows, series
 
 
-def _labels(specs: Sequence[str]) -> list[tuple[str, str]]:
-    seen: list[str] = []
-    result = []
+def parse_filters(filters: Sequence[str | FilterSpec] | None) -> list[FilterSpec]:
+    """Parsed, distinct and available filters (default :func:`default_filters`).
+
+    Raises
+    ------
+    ValueError
+        If a label is unknown or repeated, a filter is not available, or ``filters`` is empty.
+    """
+    specs = [parse_filter(f) for f in (default_filters() if filters is None else filters)]
+    if not specs:
+        raise ValueError("filters: give at least one filter")
+    labels = [spec.label for spec in specs]
+    if len(set(labels)) != len(labels):
+        raise ValueError(f"filters: labels must be distinct, got {labels}")
     for spec in specs:
-        label, target = _policy_label(spec)
-        base, k = label, 2
-        while label in seen:
-            label, k = f"{base}#{k}", k + 1
-        seen.append(label)
-        result.append((label, target))
-    return result
+        spec.build()  # fail early on an unavailable filter
+    return specs
 
 
-def _make_agent(spec: str, env: gym.Env, env_id: str, env_kwargs: Mapping[str, Any], seed: int) -> Any:
-    try:
-        from agents.evaluate import build_agent  # lazily: seif_gym does not depend on agents
-    except ImportError as error:  # pragma: no cover - depends on the installation
-        raise ImportError(f"policies come from the agents package, which could not be imported: {error}") from error
-    return build_agent(spec, env, env_id, dict(env_kwargs), int(seed))
+def warm_up(filters: Sequence[str | FilterSpec], config: Mapping[str, Any], nees_every: int = 1) -> None:
+    """Replay a short episode through every filter before timing (numba compilation, first scipy calls).
 
-
-def record_episode(env: EpisodeRecorder, agent: Any, seed: int) -> Episode:
-    """One episode of ``agent`` in the recording ``env`` from ``reset(seed=seed)`` (``deterministic=True``)."""
-    observation, _ = env.reset(seed=int(seed))
-    if hasattr(agent, "reset"):
-        agent.reset()
-    state, start = None, True
-    while True:
-        action, state = agent.predict(observation, state=state, episode_start=np.array([start]), deterministic=True)
-        start = False
-        observation, _, terminated, truncated, _ = env.step(np.asarray(action, dtype=np.float64).reshape(2))
-        if terminated or truncated:
-            return env.episode
-
-
-def _warm_up(filters: Sequence[FilterSpec], env_id: str, env_kwargs: Mapping[str, Any], nees_every: int) -> None:
-    """Run every filter once on a short episode (numba compilation, first scipy calls) before timing."""
-    env = EpisodeRecorder(gym.make(env_id, max_episode_steps=15, **env_kwargs))
+    Parameters
+    ----------
+    filters : sequence of str or FilterSpec
+    config : mapping
+        Keyword arguments of the env to record the warm-up episode in (an
+        episode's :attr:`~seif_gym.episodes.Episode.config`).
+    nees_every : int
+        As in the timed replays.
+    """
+    env = EpisodeRecorder(gym.wrappers.TimeLimit(SeifExploreEnv(**dict(config)), max_episode_steps=15))
     try:
         env.reset(seed=123_456_789)
-        env.action_space.seed(0)
         done = False
         while not done:
             _, _, terminated, truncated, _ = env.step(np.array([0.8, 0.3]))
@@ -448,99 +450,88 @@ def _warm_up(filters: Sequence[FilterSpec], env_id: str, env_kwargs: Mapping[str
         env.close()
 
 
-# -- the harness ------------------------------------------------------------------------------------
-def evaluate(
-    policies: Sequence[str],
-    layouts: Sequence[str] = ("uniform",),
-    seeds: Sequence[int] = (0,),
-    steps: int = 300,
+def evaluate_episodes(
+    episodes: Iterable[tuple[str, Episode]],
     filters: Sequence[str | FilterSpec] | None = None,
     *,
-    env_id: str = "SeifExplore-v0",
-    env_kwargs: Mapping[str, Any] | None = None,
     nees_every: int = 1,
-    episode_dir: str | Path | None = None,
+    warm: bool = True,
     verbose: bool = False,
 ) -> tuple[list[dict[str, Any]], list[dict[str, np.ndarray]]]:
-    """Record one episode per (policy, layout, seed) and replay it through every filter.
+    """Replay every episode through every filter and score it.
 
     Parameters
     ----------
-    policies : sequence of str
-        Baseline names, ``PATH.zip`` or ``LABEL=PATH.zip``.
-    layouts : sequence of str
-        Values of the env's ``layout``.
-    seeds : sequence of int
-        ``env.reset`` seeds; the same for every policy and layout.
-    steps : int
-        ``max_episode_steps`` of the recorded episodes.
+    episodes : iterable of (str, Episode)
+        ``(policy label, episode)`` pairs, in the order of the rows.
     filters : sequence of str or FilterSpec, optional
         Default :func:`default_filters`.
-    env_id, env_kwargs
-        The env: ``gym.make(env_id, layout=..., max_episode_steps=steps, **env_kwargs)``.
     nees_every : int
         Steps between computations of the full covariance (relative and map NEES).
-    episode_dir : path, optional
-        Where to save the recorded episodes.
+    warm : bool
+        Run :func:`warm_up` first (with the first episode's configuration), so
+        that compilation is not timed.
     verbose : bool
-        One progress line per episode on stderr.
+        Progress on stderr.
 
     Returns
     -------
     rows : list of dict
-        One per policy × layout × seed × filter (in this nesting order), keys :data:`RESULT_COLUMNS`.
+        One per episode × filter (in this nesting order), keys :data:`RESULT_COLUMNS`.
     series : list of dict
         The per-step curves of each row (see :func:`score_replay`).
     """
-    if isinstance(policies, str):
-        policies = [p for p in policies.split(",") if p]
-    if not policies or not layouts or not len(seeds):
-        raise ValueError("give at least one policy, one layout and one seed")
-    if int(steps) < 1:
-        raise ValueError(f"steps must be positive, got {steps}")
-    specs = [parse_filter(f) for f in (default_filters() if filters is None else filters)]
-    if not specs:
-        raise ValueError("give at least one filter")
-    labels = [spec.label for spec in specs]
-    if len(set(labels)) != len(labels):
-        raise ValueError(f"filter labels must be distinct, got {labels}")
-    for spec in specs:
-        spec.build()  # fail early on an unavailable filter
-    env_kwargs = dict(env_kwargs or {})
-    if "layout" in env_kwargs:
-        raise ValueError("give the layout with layouts=, not in env_kwargs")
-    if episode_dir is not None:
-        episode_dir = Path(episode_dir)
-        episode_dir.mkdir(parents=True, exist_ok=True)
-    _warm_up(specs, env_id, env_kwargs, nees_every)
-
+    pairs = list(episodes)
+    if not pairs:
+        raise ValueError("episodes: give at least one (label, episode) pair")
+    specs = parse_filters(filters)
+    if int(nees_every) < 1:
+        raise ValueError(f"nees_every must be positive, got {nees_every}")
+    if warm:
+        warm_up(specs, pairs[0][1].config, int(nees_every))
     rows: list[dict[str, Any]] = []
     series: list[dict[str, np.ndarray]] = []
-    for label, target in _labels(list(policies)):
-        for layout in layouts:
-            env = EpisodeRecorder(gym.make(env_id, layout=layout, max_episode_steps=int(steps), **env_kwargs))
-            try:
-                agent = None if target == "random" else _make_agent(target, env, env_id, {**env_kwargs, "layout": layout}, 0)
-                for seed in seeds:
-                    started = time.perf_counter()
-                    policy = _make_agent("random", env, env_id, env_kwargs, seed) if target == "random" else agent
-                    episode = record_episode(env, policy, int(seed))
-                    recorded = time.perf_counter() - started
-                    if episode_dir is not None:
-                        episode.save(episode_dir / f"{label}_{layout}_{int(seed)}.npz")
-                    for spec in specs:
-                        row, curves = score_replay(episode, spec, nees_every=nees_every)
-                        rows.append({"policy": label, "layout": layout, "seed": int(seed), "filter": spec.label, **row})
-                        series.append(curves)
-                    if verbose:
-                        print(
-                            f"{label:>12} {layout:>9} seed {int(seed):>4}: {episode.steps} steps recorded in "
-                            f"{recorded:.1f} s, {len(specs)} filters replayed in {time.perf_counter() - started - recorded:.1f} s",
-                            file=sys.stderr,
-                        )
-            finally:
-                env.close()
+    with Progress(len(pairs), "replaying", enabled=verbose, unit="episodes") as progress:
+        for label, episode in pairs:
+            episode_rows, episode_series = score_episode(episode, specs, policy=label, nees_every=int(nees_every))
+            rows += episode_rows
+            series += episode_series
+            progress.update(1, f"{label} {episode_rows[0]['layout']} seed {episode_rows[0]['seed']}")
     return rows, series
+
+
+def _episode_label(path: Path, episode: Episode) -> str:
+    """The file's name without the ``_LAYOUT_SEED`` that :mod:`agents.robustness` appends."""
+    suffix = f"_{episode.config.get('layout', '')}_{-1 if episode.seed is None else int(episode.seed)}"
+    return path.stem[: -len(suffix)] if path.stem.endswith(suffix) and len(path.stem) > len(suffix) else path.stem
+
+
+def load_episodes(paths: Iterable[str | Path]) -> list[tuple[str, Episode]]:
+    """``(label, episode)`` of saved episodes: ``.npz`` files, and every ``*.npz`` of a folder (sorted).
+
+    Raises
+    ------
+    FileNotFoundError
+        If a path does not exist.
+    ValueError
+        If nothing is found or a file is not a saved episode.
+    """
+    files: list[Path] = []
+    for item in paths:
+        path = Path(item)
+        if path.is_dir():
+            files += sorted(path.glob("*.npz"))
+        elif path.is_file():
+            files.append(path)
+        else:
+            raise FileNotFoundError(f"episodes: no file or folder {path}")
+    if not files:
+        raise ValueError("episodes: no .npz episode found")
+    loaded = []
+    for path in files:
+        episode = Episode.load(path)
+        loaded.append((_episode_label(path, episode), episode))
+    return loaded
 
 
 # -- aggregation ------------------------------------------------------------------------------------
@@ -874,62 +865,31 @@ class _quiet:
 
 
 # -- command line -----------------------------------------------------------------------------------
-def limit_blas_threads(threads: int = 1) -> list[str]:
-    """Set the thread count of every OpenBLAS loaded in this process (numpy's and scipy's); Linux only.
-
-    The matrices here are small (at most ``3 + 2n``): multi-threaded BLAS
-    only adds contention, which on a loaded machine made one 63 × 63 Cholesky
-    solve take 40 ms instead of 0.7 ms, and it makes the timings noisy. The
-    environment variables cannot do it after numpy is imported (``python -m
-    seif_gym.evaluate`` imports numpy with the package), hence ``ctypes``.
-    Returns the libraries changed (empty where none could be found).
-    """
-    import ctypes
-
-    changed: list[str] = []
-    try:
-        with open("/proc/self/maps") as handle:
-            paths = {line.split()[-1] for line in handle if "openblas" in line.lower() and "/" in line}
-    except OSError:
-        return changed
-    names = ("openblas_set_num_threads", "openblas_set_num_threads64_",
-             "scipy_openblas_set_num_threads", "scipy_openblas_set_num_threads64_")  # fmt: skip
-    for path in sorted(paths):
-        try:
-            library = ctypes.CDLL(path)
-        except OSError:
-            continue
-        for name in names:
-            function = getattr(library, name, None)
-            if function is not None:
-                function(int(threads))
-                changed.append(path)
-                break
-    return changed
-
-
 def _split(text: str) -> list[str]:
     return [part.strip() for part in text.split(",") if part.strip()]
+
+
+#: Options of the recording command line, which moved to ``python -m agents.robustness``.
+_RECORDING_OPTIONS = ("--policies", "--layouts", "--seeds", "--seed", "--steps", "--env", "--env-kwargs",
+                      "--no-save-episodes")  # fmt: skip
 
 
 def _parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="python -m seif_gym.evaluate",
-        description="Record episodes once per (policy, layout, seed) and replay them through every filter.",
+        description="Replay recorded episodes through every filter and score them "
+                    "(recording with policies: python -m agents.robustness).",
         epilog="See the module docstring (python -c 'import seif_gym.evaluate as e; help(e)') for the metrics and outputs.",
-    )
-    parser.add_argument("--policies", default=",".join(DEFAULT_POLICIES),
-                        help="comma-separated baselines (random, frontier, revisit, info_gain), PATH.zip or LABEL=PATH.zip")
-    parser.add_argument("--layouts", default="uniform", help=f"comma-separated layouts from {', '.join(LAYOUTS)} (default uniform)")
-    parser.add_argument("--seeds", type=int, default=5, help="episodes per policy and layout (default 5)")
-    parser.add_argument("--seed", type=int, default=0, help="first seed (default 0): seeds S .. S+N-1")
-    parser.add_argument("--steps", type=int, default=300, help="episode length, max_episode_steps (default 300)")
+    )  # fmt: skip
+    parser.add_argument("--episodes", nargs="+", metavar="PATH",
+                        help="saved episodes (.npz) or folders of them, e.g. eval/robustness/episodes")  # fmt: skip
     parser.add_argument("--filters", default=None, help=f"comma-separated filters (default {','.join(default_filters())})")
-    parser.add_argument("--env", default="SeifExplore-v0", help="registered env id (default SeifExplore-v0)")
-    parser.add_argument("--env-kwargs", default="{}", help="JSON object of further gym.make keyword arguments")
     parser.add_argument("--nees-every", type=int, default=1, help="steps between full-covariance NEES (default 1)")
     parser.add_argument("--out", default="eval/robustness", help="output folder (default eval/robustness)")
-    parser.add_argument("--no-save-episodes", action="store_true", help="do not save the recorded episodes")
+    parser.add_argument("--quiet", action="store_true", help="no progress on stderr")
+    for option in _RECORDING_OPTIONS:
+        parser.add_argument(option, dest=f"moved_{option[2:].replace('-', '_')}", nargs="?", const=True,
+                            help=argparse.SUPPRESS)  # fmt: skip
     return parser
 
 
@@ -937,44 +897,32 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Command-line entry point; returns the exit status."""
     parser = _parser()
     args = parser.parse_args(argv)
-    try:
-        env_kwargs = json.loads(args.env_kwargs)
-    except json.JSONDecodeError as error:
-        parser.error(f"--env-kwargs is not valid JSON: {error}")
-    if not isinstance(env_kwargs, dict):
-        parser.error("--env-kwargs must be a JSON object")
-    if args.seeds < 1 or args.steps < 1 or args.nees_every < 1:
-        parser.error("--seeds, --steps and --nees-every must be positive")
-    layouts = _split(args.layouts)
-    unknown = [layout for layout in layouts if layout not in LAYOUTS]
-    if unknown:
-        parser.error(f"unknown layout(s) {unknown}; use {', '.join(LAYOUTS)}")
+    moved = [option for option in _RECORDING_OPTIONS if getattr(args, f"moved_{option[2:].replace('-', '_')}") is not None]
+    if moved:
+        parser.error(f"{', '.join(moved)}: recording episodes with policies moved to `python -m agents.robustness` "
+                     "(the same options); this command scores saved episodes (--episodes PATH ...)")  # fmt: skip
+    if not args.episodes:
+        parser.error("give --episodes PATH ... (saved episodes or folders of them)")
+    if args.nees_every < 1:
+        parser.error("--nees-every must be positive")
     filters = _split(args.filters) if args.filters else default_filters()
     try:
-        specs = [parse_filter(f) for f in filters]
-        for spec in specs:
-            spec.build()
-    except ValueError as error:
+        specs = parse_filters(filters)
+        episodes = load_episodes(args.episodes)
+    except (ValueError, FileNotFoundError) as error:
         parser.error(str(error))
-    seeds = list(range(args.seed, args.seed + args.seeds))
-    out = Path(args.out)
     limit_blas_threads(1)
     started = time.perf_counter()
-    rows, series = evaluate(
-        _split(args.policies), layouts, seeds, args.steps, specs,
-        env_id=args.env, env_kwargs=env_kwargs, nees_every=args.nees_every,
-        episode_dir=None if args.no_save_episodes else out / "episodes", verbose=True,
-    )  # fmt: skip
+    rows, series = evaluate_episodes(episodes, specs, nees_every=args.nees_every, verbose=not args.quiet)
     wall = time.perf_counter() - started
     config = {
-        "argv": list(sys.argv[1:] if argv is None else argv),
-        "policies": _split(args.policies), "layouts": layouts, "seeds": seeds, "steps": args.steps,
+        "argv": list(sys.argv[1:] if argv is None else argv), "episodes": [str(p) for p in args.episodes],
         "filters": [{"label": s.label, "filter": s.filter, "options": dict(s.options)} for s in specs],
-        "env": args.env, "env_kwargs": env_kwargs, "nees_every": args.nees_every, "wall_seconds": wall,
+        "nees_every": args.nees_every, "wall_seconds": wall,
     }  # fmt: skip
-    paths = write_outputs(rows, series, out, config)
-    print(f"{args.env}: policies {args.policies}; layouts {','.join(layouts)}; seeds {seeds[0]}..{seeds[-1]}; "
-          f"{args.steps} steps\n")  # fmt: skip
+    paths = write_outputs(rows, series, Path(args.out), config)
+    print(f"{len(episodes)} episodes ({', '.join(dict.fromkeys(label for label, _ in episodes))}) through "
+          f"{len(specs)} filters\n")  # fmt: skip
     print(summary_tables(rows, series))
     print(f"\nwrote {', '.join(str(p) for p in paths.values())}; {wall:.0f} s")
     return 0

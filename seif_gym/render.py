@@ -40,6 +40,8 @@ from matplotlib.lines import Line2D
 from matplotlib.patches import Circle, Ellipse, Patch, Polygon, Rectangle, Wedge
 from numpy.typing import NDArray
 
+from seif_gym.metrics import CHI2_95_2DOF as _CHI2_95_2DOF
+
 if TYPE_CHECKING:  # pragma: no cover
     from seif_gym.slam.models import RangeBearingSensor
 
@@ -47,8 +49,9 @@ __all__ = ["FRAME_SHAPE", "CHI2_95_2DOF", "Renderer", "ellipse_parameters"]
 
 #: (height, width, channels) of every frame.
 FRAME_SHAPE = (600, 600, 3)
-#: 95% quantile of the chi-square distribution with 2 degrees of freedom.
-CHI2_95_2DOF = 5.991
+#: 95% quantile of the chi-square distribution with 2 degrees of freedom (the exact value, as the
+#: observation's ellipses; its home is :mod:`seif_gym.metrics`, re-exported here).
+CHI2_95_2DOF = _CHI2_95_2DOF
 #: Up to this many mapped landmarks, the ellipses come from one call of
 #: ``filter.local_marginals(all landmarks)`` (exact marginals for all filters,
 #: the SEIF's blanket then being the whole map: one dense inverse of the

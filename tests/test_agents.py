@@ -3,11 +3,12 @@
 * every baseline runs on every registered variant, reading no ground truth:
   the agents get a guarded view of the env whose ``world`` (and every other
   truth: the true trajectory, the map error) raises on any use, while the real
-  env produces the observations; the observation-only agents also run with
-  ``env=None``;
+  env produces the observations; each reads the observation through that
+  env's own geometry, and a missing or foreign env is an error;
 * ``predict`` follows SB3 (single and batched observations, ``episode_start``);
 * ``random`` is reproducible per seed;
-* the evaluation writes the documented CSV columns and JSON keys.
+* the evaluation writes the documented CSV columns and JSON keys, and its
+  paired statistics match a hand computation.
 """
 
 from __future__ import annotations
@@ -25,11 +26,10 @@ os.environ.setdefault("MPLBACKEND", "Agg")
 import seif_gym  # noqa: E402  (registers the environments)
 from agents import BASELINES, Agent, make_agent  # noqa: E402
 from agents import evaluate  # noqa: E402
-from agents.baselines import INFO_GAIN_READS, landmark_rows, read_belief_map  # noqa: E402
+from agents.baselines import GEOMETRY_READS, INFO_GAIN_READS, Geometry, landmark_rows, read_belief_map  # noqa: E402
+from seif_gym.observation import ObservationDecoder  # noqa: E402
 
 OBS_ONLY = tuple(name for name in BASELINES if name != "info_gain")
-#: Configuration the observation-only agents may read (to turn the observation into metres).
-CONFIG_READS = ("world_config", "observation_config", "sensor", "robot_config")
 TRUTH = ("world", "trajectory", "map_error", "_map_error", "_log_det_criterion", "_info", "step", "reset")
 
 
@@ -100,8 +100,6 @@ def test_registry() -> None:
         assert callable(agent.predict)
     with pytest.raises(ValueError, match="unknown agent"):
         make_agent("nope", env)
-    with pytest.raises(ValueError, match="needs the env"):
-        make_agent("info_gain", None)
 
 
 # -- every baseline on every variant, without the ground truth ---------------------------------------
@@ -113,8 +111,11 @@ def test_baseline_runs_on_variant_without_truth(env_id: str, name: str) -> None:
     agent = make_agent(name, view, **agent_kwargs(name))
     actions = run_short(env, agent)
     assert len(actions) == 30
-    allowed = INFO_GAIN_READS if name == "info_gain" else CONFIG_READS
+    allowed = INFO_GAIN_READS if name == "info_gain" else GEOMETRY_READS
     assert view.reads <= set(allowed), f"{name} read {sorted(view.reads - set(allowed))}"
+    # the observation is read through this env's own geometry
+    assert agent.geometry.decoder == ObservationDecoder.from_env(env) == env.unwrapped.encoder.decoder()
+    assert agent.geometry.arena_size == env.unwrapped.world_config.arena_size
     if name == "info_gain":
         assert "filter" in view.reads and agent.planning_times
     else:
@@ -123,24 +124,39 @@ def test_baseline_runs_on_variant_without_truth(env_id: str, name: str) -> None:
         assert np.any(np.stack(actions)[:, 0] > 0.1), "it should drive somewhere"
 
 
-@pytest.mark.parametrize("name", OBS_ONLY)
-def test_observation_only_agents_need_no_env(name: str) -> None:
-    env = gym.make("SeifExploreLoop-v0", max_episode_steps=30)
-    run_short(env, make_agent(name, None, **agent_kwargs(name)), seed=3)
-    # a copy of the observation (no link to the env at all) gives the same action
-    obs, _ = env.reset(seed=4)
-    first, _ = make_agent(name, None, **agent_kwargs(name)).predict({k: v.copy() for k, v in obs.items()})
-    second, _ = make_agent(name, None, **agent_kwargs(name)).predict(obs)
-    np.testing.assert_array_equal(first, second)
+@pytest.mark.parametrize("name", BASELINES)
+def test_every_baseline_needs_the_env_it_acts_in(name: str) -> None:
+    """No silent default geometry: a missing or foreign env raises ``TypeError`` naming ``env``."""
+    with pytest.raises(TypeError, match="env"):
+        make_agent(name, None, **agent_kwargs(name))
+    with pytest.raises(TypeError, match="SeifExplore env"):
+        make_agent(name, gym.make("CartPole-v1"), **agent_kwargs(name))
+    with pytest.raises(TypeError, match="env"):
+        make_agent(name, object(), **agent_kwargs(name))
 
 
-def test_obs_only_agents_given_env_match_env_none_on_default_config() -> None:
-    """With the default configuration the env adds nothing: same actions with and without it."""
-    env = gym.make("SeifExplore-v0", max_episode_steps=40)
-    for name in ("frontier", "revisit"):
-        with_env = run_short(env, make_agent(name, GuardedEnv(env)), seed=7)
-        without = run_short(env, make_agent(name, None), seed=7)
-        np.testing.assert_array_equal(np.stack(with_env), np.stack(without))
+@pytest.mark.parametrize("env_id", list(seif_gym.VARIANTS))
+def test_geometry_is_the_env_encoders_inverse(env_id: str) -> None:
+    env = gym.make(env_id, max_episode_steps=5)
+    geometry = Geometry.from_env(env)
+    encoder = env.unwrapped.encoder
+    assert geometry.decoder == encoder.decoder()
+    assert geometry.arena_size == encoder.arena_size and geometry.map_extent == encoder.config.map_extent
+    assert geometry.sensor_range == env.unwrapped.sensor.max_range
+    # the landmark offsets decode to metres with this env's arena: a frontier agent of the default
+    # geometry would misread SeifExploreLarge's by a factor of 2
+    expected = 40.0 if "Large" in env_id else 20.0
+    assert geometry.arena_size == expected
+
+
+def test_a_vec_env_of_mixed_geometries_is_refused() -> None:
+    envs = [gym.make("SeifExplore-v1", max_episode_steps=5), gym.make("SeifExploreLarge-v1", max_episode_steps=5)]
+    with pytest.raises(ValueError, match="differ in geometry"):
+        make_agent("frontier", envs)
+    frontier = make_agent("frontier", envs[0])
+    obs, _ = envs[0].reset(seed=0)
+    with pytest.raises(ValueError, match="another env"):
+        frontier.predict({**obs, "belief_map": np.zeros((3, 16, 16), dtype=np.uint8)})
 
 
 def test_info_gain_is_deterministic_and_reads_only_the_belief() -> None:
@@ -262,7 +278,7 @@ def test_observation_agents_act_the_same_on_the_old_and_new_formats(name: str) -
     """The uint8 map and the flat landmarks change nothing of the decisions."""
     env = gym.make("SeifExplore-v0", max_episode_steps=60)
     kwargs = {"period": 10, "cooldown": 5} if name == "revisit" else {}
-    new_agent, old_agent = make_agent(name, None, **kwargs), make_agent(name, None, **kwargs)
+    new_agent, old_agent = make_agent(name, env, **kwargs), make_agent(name, env, **kwargs)
     obs, _ = env.reset(seed=5)
     start = True
     for _ in range(60):
@@ -280,7 +296,7 @@ def test_observation_agents_act_the_same_on_the_old_and_new_formats(name: str) -
 def test_revisit_targets_the_listed_landmark_from_the_flat_rows() -> None:
     """``revisit`` reads the (4K,) landmarks as K rows: its target is the most uncertain listed landmark."""
     env = gym.make("SeifExplore-v0", max_episode_steps=50)
-    agent = make_agent("revisit", None, period=1, cooldown=0)
+    agent = make_agent("revisit", env, period=1, cooldown=0)
     obs, _ = env.reset(seed=1)
     for _ in range(5):
         obs = env.step(np.array([0.6, 0.4], dtype=np.float32))[0]
@@ -299,9 +315,9 @@ def test_revisit_targets_the_listed_landmark_from_the_flat_rows() -> None:
 # -- random ---------------------------------------------------------------------------------------
 def test_random_is_reproducible_per_seed() -> None:
     env = gym.make("SeifExplore-v0", max_episode_steps=15)
-    a = np.stack(run_short(env, make_agent("random", None, seed=42)))
-    b = np.stack(run_short(env, make_agent("random", None, seed=42)))
-    c = np.stack(run_short(env, make_agent("random", None, seed=43)))
+    a = np.stack(run_short(env, make_agent("random", env, seed=42)))
+    b = np.stack(run_short(env, make_agent("random", env, seed=42)))
+    c = np.stack(run_short(env, make_agent("random", env, seed=43)))
     np.testing.assert_array_equal(a, b)
     assert not np.array_equal(a, c)
     assert a.min() < -0.5 and a.max() > 0.5
@@ -311,7 +327,7 @@ def test_random_is_reproducible_per_seed() -> None:
 def test_schema_is_documented() -> None:
     doc = evaluate.__doc__
     for name in (*evaluate.RESULT_COLUMNS, *evaluate.SUMMARY_KEYS, *evaluate.AGENT_KEYS, *evaluate.STAT_KEYS,
-                 *evaluate.CURVE_KEYS):  # fmt: skip
+                 *evaluate.CURVE_KEYS, *evaluate.PAIRED_KEYS, *evaluate.PAIRED_STAT_KEYS):  # fmt: skip
         assert f"``{name}``" in doc, f"{name} is not documented in agents.evaluate"
     assert set(evaluate.SUMMARY_METRICS) <= set(evaluate.RESULT_COLUMNS)
 
@@ -347,6 +363,84 @@ def test_evaluation_writes_the_documented_schema(tmp_path) -> None:
     # the metrics agree with the rows
     frontier = [float(row["final_map_error"]) for row in table if row["agent"] == "frontier"]
     assert data["agents"]["frontier"]["final_map_error"]["mean"] == pytest.approx(np.mean(frontier))
+    # the paired comparison: every agent but the best baseline against it, on the same seeds
+    paired = data["paired"]
+    assert tuple(paired) == evaluate.PAIRED_KEYS and paired["metric"] == "final_map_error"
+    means = {label: entry["final_map_error"]["mean"] for label, entry in data["agents"].items()}
+    assert paired["reference"] == min(means, key=means.get)
+    assert set(paired["agents"]) == set(specs) - {paired["reference"]}
+    for label, entry in paired["agents"].items():
+        assert tuple(entry) == (*evaluate.PAIRED_STAT_KEYS, "verdict") and entry["n"] == 2
+        assert entry["mean"] == pytest.approx(means[label] - means[paired["reference"]])
+    assert "Paired per-seed differences" in paths["markdown"].read_text()
+
+
+# -- paired statistics -----------------------------------------------------------------------------
+#: A small fixed table: final map errors of three agents on the seeds 5, 6, 7, 8.
+FIXED = {
+    "frontier": [0.30, 0.25, 0.40, 0.35],
+    "revisit": [0.20, 0.30, 0.30, 0.25],
+    "ppo": [0.10, 0.15, 0.20, 0.10],
+}
+
+
+def _fixed_rows() -> list[dict]:
+    return [{"agent": agent, "seed": 5 + k, "final_map_error": value}
+            for agent, values in FIXED.items() for k, value in enumerate(values)]  # fmt: skip
+
+
+def test_paired_difference_matches_a_hand_computation() -> None:
+    # frontier - revisit, per seed: 0.10, -0.05, 0.10, 0.10
+    # mean 0.0625; s_d = sqrt((3 * 0.0375**2 + 0.1125**2) / 3) = 0.075; t(0.975, 3) = 3.1824463052837078
+    # half width = 3.1824463052837078 * 0.075 / sqrt(4) = 0.11934173644813903
+    result = evaluate.paired_difference(FIXED["frontier"], FIXED["revisit"])
+    assert result["n"] == 4
+    assert result["mean"] == pytest.approx(0.0625, abs=1e-15)
+    assert result["std"] == pytest.approx(0.075, abs=1e-15)
+    assert result["ci95_low"] == pytest.approx(0.0625 - 0.11934173644813903, abs=1e-12)
+    assert result["ci95_high"] == pytest.approx(0.0625 + 0.11934173644813903, abs=1e-12)
+    assert result["bootstrap_ci95_low"] is None
+    assert evaluate.paired_verdict(result) == "tie (interval holds 0)"
+    # ppo - revisit: -0.10, -0.15, -0.10, -0.15: mean -0.125, s_d = 0.028867513459481284,
+    # half width = 3.1824463052837078 * 0.028867513459481284 / 2 = 0.04593465577592696: [-0.1709, -0.0791]
+    result = evaluate.paired_difference(FIXED["ppo"], FIXED["revisit"])
+    assert result["mean"] == pytest.approx(-0.125, abs=1e-15)
+    assert result["ci95_high"] == pytest.approx(-0.125 + 0.04593465577592696, abs=1e-12)
+    assert evaluate.paired_verdict(result) == "beats"
+    assert evaluate.paired_verdict(evaluate.paired_difference(FIXED["revisit"], FIXED["ppo"])) == "worse"
+
+
+def test_paired_comparison_of_a_fixed_table() -> None:
+    # means: frontier 0.325, revisit 0.2625, ppo 0.1375: the best *baseline* is revisit (ppo is not a baseline)
+    paired = evaluate.paired_comparison(_fixed_rows(), baselines=["frontier", "revisit"], bootstrap=2000)
+    assert paired["reference"] == "revisit" and list(paired["agents"]) == ["frontier", "ppo"]
+    ppo = paired["agents"]["ppo"]
+    assert ppo["verdict"] == "beats" and ppo["mean"] == pytest.approx(-0.125)
+    # the bootstrap interval lies within the sample's range of differences and holds the mean
+    assert -0.15 - 1e-12 <= ppo["bootstrap_ci95_low"] <= -0.125 <= ppo["bootstrap_ci95_high"] <= -0.10 + 1e-12
+    assert paired["agents"]["frontier"]["verdict"] == "tie (interval holds 0)"
+    # reproducible, and "beats" only when the interval excludes zero
+    assert evaluate.paired_comparison(_fixed_rows(), ["frontier", "revisit"], bootstrap=2000) == paired
+    summary = {"seeds": [5, 6, 7, 8], "paired": paired}
+    table = evaluate.paired_table(summary)
+    assert "| ppo | -0.125 | [-0.171, -0.079] | " in table and "beats revisit |" in table
+    assert "| frontier | +0.062 | [-0.057, +0.182] | " in table  # 0.0625 rounds to even
+    # no baseline: nothing to compare with
+    assert evaluate.paired_comparison(_fixed_rows(), baselines=[])["reference"] is None
+
+
+def test_paired_statistics_reject_bad_input() -> None:
+    with pytest.raises(ValueError, match="values and reference"):
+        evaluate.paired_difference([1.0, 2.0], [1.0])
+    with pytest.raises(ValueError, match="confidence"):
+        evaluate.paired_difference([1.0, 2.0], [1.0, 1.0], confidence=1.5)
+    with pytest.raises(ValueError, match="bootstrap"):
+        evaluate.paired_difference([1.0, 2.0], [1.0, 1.0], bootstrap=-1)
+    one = evaluate.paired_difference([1.0], [0.5])
+    assert one["mean"] == 0.5 and one["ci95_low"] is None and evaluate.paired_verdict(one) == "n/a (one seed)"
+    rows = _fixed_rows()[:-1]  # ppo lost its last seed
+    with pytest.raises(ValueError, match="different seeds"):
+        evaluate.paired_comparison(rows, ["revisit"])
 
 
 def test_belief_extractor_gets_the_uint8_map_as_unit_floats() -> None:
@@ -400,7 +494,11 @@ def test_cli_with_an_sb3_model_and_vecnormalize(tmp_path, capsys) -> None:
         "--env-kwargs", '{"max_episode_steps": 10}', "--out", str(out),
     ])  # fmt: skip
     assert status == 0
-    printed = capsys.readouterr().out
+    captured = capsys.readouterr()
+    printed = captured.out
     assert "| policy |" in printed and "| frontier |" in printed
+    assert "Paired per-seed differences of final map error to the best baseline, frontier" in printed
+    assert "| policy | " in printed.split("Paired")[1]
+    assert "frontier: 2 episodes" in captured.err  # progress on stderr (none with --quiet)
     assert {path.name for path in out.iterdir()} == {"results.csv", "summary.json", "summary.md", "map_error.png"}
     assert list(json.loads((out / "summary.json").read_text())["agents"]) == ["frontier", "policy"]

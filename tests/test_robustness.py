@@ -1,4 +1,5 @@
-"""The filter robustness harness (``seif_gym.evaluate``) and the adversarial reward (``agents.adversary``)."""
+"""The filter robustness harness (``agents.robustness`` records, ``seif_gym.evaluate`` replays and scores) and the
+adversarial reward (``agents.adversary``)."""
 
 from __future__ import annotations
 
@@ -9,16 +10,11 @@ import numpy as np
 import pytest
 
 import seif_gym  # noqa: F401
+from agents.robustness import evaluate, main
+from seif_gym import evaluate as harness
 from seif_gym.episodes import Episode, EpisodeRecorder, replay
-from seif_gym.evaluate import (
-    RESULT_COLUMNS,
-    TIMESERIES_KEYS,
-    FilterSpec,
-    _map_nees,
-    evaluate,
-    main,
-    parse_filter,
-)
+from seif_gym.evaluate import RESULT_COLUMNS, TIMESERIES_KEYS, FilterSpec, parse_filter
+from seif_gym.metrics import map_nees
 from seif_gym.slam import FILTERS
 
 STEPS = 20
@@ -29,7 +25,7 @@ def harness_run(tmp_path_factory):
     out = tmp_path_factory.mktemp("robustness")
     argv = ["--policies", "random", "--layouts", "uniform", "--seeds", "1", "--seed", "3", "--steps", str(STEPS),
             "--filters", "seif-k2,seif-k8,ekf", "--out", str(out)]  # fmt: skip
-    assert main(argv) == 0
+    assert main([*argv, "--quiet"]) == 0
     return out
 
 
@@ -113,7 +109,7 @@ def test_relative_nees_is_anchor_free():
     basis = rng.normal(size=(2 * m, 2 * m))
     cov = basis @ basis.T + np.eye(2 * m)
     truth, estimate = rng.normal(size=(m, 2)), rng.normal(size=(m, 2))
-    global_nees, relative_nees = _map_nees(truth, estimate, cov)
+    global_nees, relative_nees = map_nees(truth, estimate, cov)
     error = (truth - estimate).reshape(-1)
     assert global_nees == pytest.approx(error @ np.linalg.solve(cov, error))
     chain = np.zeros((2 * (m - 1), 2 * m))  # consecutive pairs instead of the anchor 0
@@ -124,12 +120,38 @@ def test_relative_nees_is_anchor_free():
     assert relative_nees == pytest.approx(d @ np.linalg.solve(chain @ cov @ chain.T, d))
 
 
+def test_saved_episodes_score_as_when_recorded(harness_run, tmp_path, capsys):
+    """``python -m seif_gym.evaluate --episodes DIR`` (no agents) gives the recording run's rows, timings aside."""
+    out = tmp_path / "rescored"
+    assert harness.main(["--episodes", str(harness_run / "episodes"), "--filters", "seif-k2,seif-k8,ekf",
+                         "--out", str(out), "--quiet"]) == 0  # fmt: skip
+    assert capsys.readouterr().err == ""  # --quiet: nothing on stderr
+
+    def table(path):
+        with path.open() as handle:
+            return [{k: v for k, v in row.items() if not k.startswith("us_per_step")} for row in csv.DictReader(handle)]
+
+    assert table(out / "results.csv") == table(harness_run / "results.csv")
+    labelled = harness.load_episodes([harness_run / "episodes" / "random_uniform_3.npz"])
+    assert [label for label, _ in labelled] == ["random"]
+
+
+def test_the_recording_options_moved_to_agents_robustness(capsys):
+    with pytest.raises(SystemExit):
+        harness.main(["--policies", "random", "--seeds", "2"])
+    assert "python -m agents.robustness" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        harness.main(["--episodes", "/no/such/folder"])
+
+
 def test_parse_filter():
     assert parse_filter("seif-k4").options == {"max_active": 4}
     assert parse_filter("seif-exact").options == {"max_active": 8, "mean_recovery": "exact"}
     assert parse_filter("ekf").filter == "ekf"
     with pytest.raises(ValueError):
         parse_filter("seif")
+    with pytest.raises(ValueError, match="distinct"):
+        harness.parse_filters(["ekf", "ekf"])
 
 
 def test_adversary_return_is_the_final_gap():

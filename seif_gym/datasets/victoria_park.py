@@ -49,6 +49,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from seif_gym.datasets._arrays import frozen
+from seif_gym.progress import Progress
+from seif_gym.threads import limit_blas_threads  # noqa: F401  (public here before seif_gym.threads existed)
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
@@ -470,81 +472,6 @@ class RunResult:
         )
 
 
-class _Progress:
-    """tqdm when it is installed, else a line on stderr every 10%."""
-
-    def __init__(self, total: int, enabled: bool, desc: str) -> None:
-        self.total, self.done, self.enabled = total, 0, enabled
-        self._bar = None
-        self._next = 0.1
-        if enabled:
-            try:
-                from tqdm import tqdm
-
-                self._bar = tqdm(total=total, desc=desc, unit="step", mininterval=0.5, smoothing=0.1)
-            except ImportError:
-                pass
-
-    def update(self, count: int, postfix: str = "") -> None:
-        self.done += count
-        if not self.enabled:
-            return
-        if self._bar is not None:
-            self._bar.update(count)
-            if postfix:
-                self._bar.set_postfix_str(postfix, refresh=False)
-        elif self.done >= self._next * self.total:
-            import sys
-
-            print(f"  {100 * self.done / self.total:3.0f}%  {postfix}", file=sys.stderr, flush=True)
-            self._next += 0.1
-
-    def close(self) -> None:
-        if self._bar is not None:
-            self._bar.close()
-
-
-def limit_blas_threads(count: int = 1) -> int:
-    """Limit the OpenBLAS threads of numpy and scipy (also used by the numba kernels) to ``count``.
-
-    The filters factorise small dense blocks (tens to a few hundred rows),
-    where BLAS threads cost more than they save; on a loaded machine a
-    threaded 160 x 160 Cholesky took 80 ms instead of 0.06 ms here. Uses
-    ``threadpoolctl`` when installed, else calls ``*openblas_set_num_threads*``
-    in every OpenBLAS the process has loaded (Linux). Returns how many
-    libraries were limited (0 where neither way works).
-    """
-    import scipy.linalg  # noqa: F401  (loads scipy's OpenBLAS, which the numba kernels call)
-
-    try:
-        from threadpoolctl import threadpool_limits
-
-        return len(threadpool_limits(limits=int(count), user_api="blas")._original_info or [])
-    except ImportError:
-        pass
-    import ctypes
-
-    try:
-        with open("/proc/self/maps") as maps:
-            paths = sorted({line.split()[-1] for line in maps if "openblas" in line.lower() and "/" in line})
-    except OSError:
-        return 0
-    limited = 0
-    for path in paths:
-        try:
-            library = ctypes.CDLL(path)
-        except OSError:
-            continue
-        for name in ("openblas_set_num_threads", "openblas_set_num_threads64_", "scipy_openblas_set_num_threads",
-                     "scipy_openblas_set_num_threads64_"):  # fmt: skip
-            function = getattr(library, name, None)
-            if function is not None:
-                function(ctypes.c_int(int(count)))
-                limited += 1
-                break
-    return limited
-
-
 def make_models(config: RunConfig):
     """The car model and the range-bearing sensor of ``config``."""
     from seif_gym.slam.car_model import AckermannLaserModel
@@ -583,7 +510,7 @@ def run(
     progress : bool
         Show a progress bar (tqdm if installed).
     blas_threads : int or None
-        Calls :func:`limit_blas_threads` first (process-wide); ``None`` leaves BLAS alone.
+        Calls :func:`seif_gym.threads.limit_blas_threads` first (process-wide); ``None`` leaves BLAS alone.
 
     Notes
     -----
@@ -613,7 +540,7 @@ def run(
              int(np.searchsorted(scans.time, odo.time[warm_odo - 1], side="right")), config, None)  # fmt: skip
     warm_up = clock.perf_counter() - warm_start
     filt, associator = _setup(data, filter_name, config)
-    bar = _Progress(n_odo, progress, f"{filter_name} Victoria Park")
+    bar = Progress(n_odo, f"{filter_name} Victoria Park", enabled=progress, unit="step")
     started, cpu_started = clock.perf_counter(), clock.process_time()
     times, poses, scan_elapsed, scan_landmarks = _process(data, filt, associator, n_odo, n_scan, config, bar)
     total, cpu = clock.perf_counter() - started, clock.process_time() - cpu_started
@@ -857,7 +784,8 @@ def main(argv=None) -> int:
     parser.add_argument("--no-plot", action="store_true", help="do not save a plot")
     parser.add_argument("--compare", action="append", default=[], metavar="RUN.npz",
                         help="another run's output whose time per step the plot shows too (repeatable)")  # fmt: skip
-    parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    parser.add_argument("--quiet", "--no-progress", dest="quiet", action="store_true",
+                        help="no progress bar on stderr")  # fmt: skip
     parser.add_argument("--signature", action="store_true", help="gate on the trunk diameter too")
     parser.add_argument("--max-active", type=int, default=RunConfig.max_active, help="SEIF/ESEIF active landmarks")
     parser.add_argument("--blas-threads", type=int, default=1, help="BLAS threads (default 1; 0 leaves BLAS alone)")
@@ -872,7 +800,7 @@ def main(argv=None) -> int:
     config = RunConfig(max_active=args.max_active)
     if args.signature:
         config = dataclasses.replace(config, **SIGNATURE_SETTINGS)
-    result = run(data, args.filter, steps=args.steps, config=config, progress=not args.no_progress,
+    result = run(data, args.filter, steps=args.steps, config=config, progress=not args.quiet,
                  blas_threads=args.blas_threads or None)  # fmt: skip
     out = _Path(args.out)
     if out.parent != _Path(""):

@@ -12,9 +12,11 @@ import gymnasium as gym
 import numpy as np
 import scipy.sparse.linalg
 from gymnasium import spaces
-from numba import njit
 from numpy.typing import NDArray
 
+from seif_gym.metrics import filter_map_error, map_error
+from seif_gym.metrics import map_error_kernel as _map_error  # noqa: F401  (the vector env's kernels import it from here)
+from seif_gym.metrics import nees_kernel as _nees
 from seif_gym.observation import BeliefEncoder, ObservationConfig
 from seif_gym.slam import FILTERS, SEIF, RangeBearingSensor, SlamFilter, VelocityMotionModel, make_filter
 from seif_gym.slam.association import ASSOCIATOR_PRESETS, AssociationAudit, make_associator
@@ -117,77 +119,6 @@ class RewardConfig:
         for name in ("d_cap", "divergence_threshold"):
             _check_positive(name, getattr(self, name))
         _check_positive("wall_penalty", self.wall_penalty, allow_zero=True)
-
-
-def map_error(estimates: FloatArray, truth: FloatArray, ids: NDArray[np.int64], d_cap: float) -> float:
-    """``E_t``: the mean over all true landmarks of ``min(error, d_cap)``, unmapped ones counted as ``d_cap``.
-
-    Parameters
-    ----------
-    estimates : ndarray, shape (m, 2)
-        Estimated positions of the mapped landmarks.
-    truth : ndarray, shape (n, 2)
-        True positions of all landmarks.
-    ids : ndarray of int, shape (m,)
-        Row of ``truth`` of each estimate.
-    d_cap : float
-        Cap of one landmark's error.
-    """
-    return float(_map_error(np.ascontiguousarray(estimates, dtype=np.float64), truth, np.asarray(ids, dtype=np.int64), float(d_cap)))
-
-
-def filter_map_error(filt: SlamFilter, truth: FloatArray, d_cap: float, audit: AssociationAudit | None = None) -> float:
-    """:func:`map_error` of ``filt``'s map (``E_t`` of the env's reward).
-
-    With an ``audit`` (unknown correspondences) the filter's landmarks carry
-    the associator's ids: each is matched to the true landmark it was
-    created from, and only the first landmark made for a true one counts
-    (duplicates do not reduce the error).
-    """
-    ids, estimates = filt.landmark_ids, filt.landmarks
-    if audit is not None:
-        true = audit.true_ids(ids)
-        _, first = np.unique(true, return_index=True)
-        keep = first[true[first] >= 0]
-        ids, estimates = true[keep], estimates[keep]
-    return map_error(estimates, truth, ids, d_cap)
-
-
-@njit(cache=True)
-def _map_error(estimates, truth, ids, d_cap):
-    total = d_cap * (truth.shape[0] - ids.shape[0])
-    for k in range(ids.shape[0]):
-        dx = estimates[k, 0] - truth[ids[k], 0]
-        dy = estimates[k, 1] - truth[ids[k], 1]
-        total += min(np.sqrt(dx * dx + dy * dy), d_cap)
-    return total / truth.shape[0]
-
-
-@njit(cache=True)
-def _nees(error, covariance):
-    """``e^T P^-1 e`` by a Cholesky solve; ``inf`` if ``P`` is not positive definite."""
-    n = error.shape[0]
-    lower = np.zeros((n, n))
-    for i in range(n):
-        for j in range(i + 1):
-            value = covariance[i, j]
-            for k in range(j):
-                value -= lower[i, k] * lower[j, k]
-            if i == j:
-                if value <= 0.0:
-                    return np.inf
-                lower[i, i] = np.sqrt(value)
-            else:
-                lower[i, j] = value / lower[j, j]
-    total = 0.0
-    y = np.zeros(n)
-    for i in range(n):
-        value = error[i]
-        for k in range(i):
-            value -= lower[i, k] * y[k]
-        y[i] = value / lower[i, i]
-        total += y[i] * y[i]
-    return total
 
 
 def _no_clock() -> float:

@@ -38,6 +38,9 @@ from numpy.typing import NDArray
 from seif_gym.slam._validation import as_finite_array, as_finite_vector, as_positive_scalar
 from seif_gym.slam.models import wrap_angle
 
+# the metric has one home, seif_gym.metrics; re-exported here, where it was first defined
+from seif_gym.metrics import pose_nees  # noqa: F401  (after the slam imports: metrics imports slam.models)
+
 if TYPE_CHECKING:  # imported for annotations only: no import cycle at run time
     from seif_gym.slam.base import SlamFilter
     from seif_gym.slam.models import MotionModel, RangeBearingSensor
@@ -302,35 +305,3 @@ def run_filter(filt: SlamFilter, run: SimulatedRun) -> dict[str, NDArray]:
         seconds[t] = time.perf_counter() - start
         poses[t + 1], covariances[t + 1] = filt.pose, filt.pose_covariance
     return {"poses": poses, "pose_covariances": covariances, "step_seconds": seconds}
-
-
-def pose_nees(true_pose, est_pose, cov) -> FloatArray | float:
-    """Normalized estimation error squared of poses, heading error wrapped.
-
-    ``e = true - est`` with ``e_theta`` wrapped to ``[-pi, pi)``, and
-    ``NEES = e^T cov^-1 e``. For a consistent filter it is chi-square
-    distributed with 3 degrees of freedom (mean 3).
-
-    Parameters
-    ----------
-    true_pose, est_pose : array_like, shape (..., 3)
-    cov : array_like, shape (..., 3, 3)
-        Estimated pose covariances (symmetric positive definite).
-
-    Returns
-    -------
-    float or ndarray, shape (...)
-        A float for single poses.
-    """
-    true_pose = np.asarray(true_pose, dtype=np.float64)
-    est_pose = np.asarray(est_pose, dtype=np.float64)
-    cov = np.asarray(cov, dtype=np.float64)
-    if true_pose.shape[-1:] != (3,) or est_pose.shape != true_pose.shape or cov.shape != true_pose.shape + (3,):
-        raise ValueError(
-            f"expected poses of shape (..., 3) and covariances (..., 3, 3), got {true_pose.shape}, "
-            f"{est_pose.shape} and {cov.shape}"
-        )
-    error = true_pose - est_pose
-    error[..., 2] = wrap_angle(error[..., 2])
-    nees = np.einsum("...i,...i->...", error, np.linalg.solve(cov, error[..., None])[..., 0])
-    return float(nees) if nees.ndim == 0 else nees

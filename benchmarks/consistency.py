@@ -63,11 +63,11 @@ import numpy as np  # noqa: E402
 import scipy  # noqa: E402
 from scipy.stats import chi2  # noqa: E402
 
+from seif_gym.metrics import pose_nees  # noqa: E402
 from seif_gym.slam import EKF, SEIF, RangeBearingSensor, VelocityMotionModel  # noqa: E402
 from seif_gym.slam.simulation import (  # noqa: E402
     loop_controls,
     loop_start_pose,
-    pose_nees,
     ring_landmarks,
     run_filter,
     simulate_run,

@@ -60,9 +60,9 @@ from concurrent.futures import ProcessPoolExecutor  # noqa: E402
 import numpy as np  # noqa: E402
 from scipy.stats import chi2  # noqa: E402
 
+from seif_gym.metrics import pose_nees  # noqa: E402
 from seif_gym.slam import EKF, ESEIF, SEIF  # noqa: E402
 from seif_gym.slam.scenarios import FIDELITY_SCENARIOS, make_loop_run  # noqa: E402
-from seif_gym.slam.simulation import pose_nees  # noqa: E402
 
 #: (label, class, options); ``max_active`` is added per k (not for the EKF).
 FILTERS = [

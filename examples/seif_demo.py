@@ -51,6 +51,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 from matplotlib.patches import Ellipse, Rectangle  # noqa: E402
 
+from seif_gym.metrics import CHI2_95_2DOF  # noqa: E402
 from seif_gym.slam import EIF, EKF, SEIF, RangeBearingSensor, VelocityMotionModel  # noqa: E402
 from seif_gym.slam.simulation import (  # noqa: E402
     loop_controls,
@@ -60,7 +61,6 @@ from seif_gym.slam.simulation import (  # noqa: E402
     simulate_run,
 )
 
-CHI2_95_2DOF = 5.991
 RADIUS, DT, MAX_RANGE, NUM_LANDMARKS = 10.0, 0.1, 4.0, 50
 SEIF_COLOR, EKF_COLOR, TRUE_COLOR = "tab:blue", "tab:orange", "black"
 

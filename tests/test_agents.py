@@ -502,3 +502,26 @@ def test_cli_with_an_sb3_model_and_vecnormalize(tmp_path, capsys) -> None:
     assert "frontier: 2 episodes" in captured.err  # progress on stderr (none with --quiet)
     assert {path.name for path in out.iterdir()} == {"results.csv", "summary.json", "summary.md", "map_error.png"}
     assert list(json.loads((out / "summary.json").read_text())["agents"]) == ["frontier", "policy"]
+
+
+def test_quiet_evaluation_writes_nothing_on_stderr(tmp_path, capsys) -> None:
+    status = evaluate.main(["--agents", "frontier,random", "--episodes", "2", "--seed", "1", "--env", "SeifExplore-v1",
+                            "--env-kwargs", '{"max_episode_steps": 5}', "--out", str(tmp_path), "--quiet"])  # fmt: skip
+    assert status == 0
+    captured = capsys.readouterr()
+    assert captured.err == ""
+    assert "| random | " in captured.out.split("Paired")[1]  # the paired table is still printed
+
+
+def test_showcase_verdict_comes_from_the_paired_interval() -> None:
+    from agents.showcase import verdict_sentence
+
+    rows = _fixed_rows()
+    agents = {label: {"final_map_error": {"mean": float(np.mean(values))}} for label, values in FIXED.items()}
+    summary = {"agents": agents, "paired": evaluate.paired_comparison(rows, ["frontier", "revisit"])}
+    sentence = verdict_sentence(summary, "ppo")
+    assert sentence.startswith("ppo (0.138 m) beats the best baseline, revisit (0.263 m): ")
+    assert "-0.125 m, 95% t interval [-0.171, -0.079] m over 4 seeds" in sentence
+    # a lower mean alone is not enough: revisit has a lower mean than frontier, but the interval holds 0
+    summary["paired"] = evaluate.paired_comparison(rows, ["frontier"])  # frontier is the only baseline
+    assert "does not beat" in verdict_sentence(summary, "revisit") and "holds 0" in verdict_sentence(summary, "revisit")

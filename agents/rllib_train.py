@@ -57,7 +57,7 @@ from typing import Any
 
 import gymnasium as gym
 
-__all__ = ["PROGRESS_COLUMNS", "RLLIB_ENV_NAME", "TrainResult", "make_env", "build_config", "train", "main"]
+__all__ = ["PROGRESS_COLUMNS", "RLLIB_ENV_NAME", "TrainResult", "make_env", "build_config", "train", "stop_algorithm", "main"]
 
 #: Columns of ``progress.csv``.
 PROGRESS_COLUMNS: tuple[str, ...] = (
@@ -256,12 +256,16 @@ class TrainResult:
         Env steps sampled.
     progress : Path
         ``OUT/progress.csv``.
+    env_runner_nodes : tuple of str
+        The Ray node id of each remote env runner (empty without remote
+        runners): where the sampling ran.
     """
 
     checkpoint: Path
     iterations: int
     env_steps: int
     progress: Path
+    env_runner_nodes: tuple[str, ...] = ()
 
 
 def _get(result: Mapping[str, Any], *keys: str, default: float = math.nan) -> Any:
@@ -304,6 +308,14 @@ def _jsonable(value: Any) -> Any:
     return repr(value)
 
 
+def stop_algorithm(algo: Any) -> None:
+    """``algo.stop()``, and remove the empty directory RLlib's ``Trainable`` made for it under ``~/ray_results``."""
+    logdir = getattr(algo, "logdir", None)
+    algo.stop()
+    if logdir and os.path.isdir(logdir) and not os.listdir(logdir):
+        os.rmdir(logdir)
+
+
 def _init_ray(address: str | None, num_cpus: int | None, quiet: bool) -> bool:
     """Connect to Ray (start a loopback-only local instance without ``address``); ``True`` if started here."""
     if address is None:
@@ -315,7 +327,8 @@ def _init_ray(address: str | None, num_cpus: int | None, quiet: bool) -> bool:
         return False
     kwargs: dict[str, Any] = {"include_dashboard": False, "log_to_driver": not quiet, "logging_level": "ERROR"}
     if address is None:
-        ray.init(num_cpus=num_cpus, _node_ip_address="127.0.0.1", **kwargs)
+        # address="local": a new instance even where `ray start` has recorded a cluster in /tmp/ray
+        ray.init(address="local", num_cpus=num_cpus, _node_ip_address="127.0.0.1", **kwargs)
     else:
         ray.init(address=address, **kwargs)
     return True
@@ -398,6 +411,16 @@ def train(
     algo = None
     try:
         algo = config.build_algo()
+        nodes = tuple(
+            algo.env_runner_group.foreach_env_runner(
+                lambda runner: ray.get_runtime_context().get_node_id(), local_env_runner=False
+            )
+            if config.num_env_runners > 0
+            else ()
+        )
+        if not quiet:
+            where = f"{len(nodes)} env runners on {len(set(nodes))} node(s)" if nodes else "sampling in this process"
+            print(f"{env_id}: {where}, {config.num_envs_per_env_runner} envs each", flush=True)
         started = time.perf_counter()
         iteration, steps = 0, 0
         with progress.open("w", newline="") as handle:
@@ -423,14 +446,12 @@ def train(
         algo.save_to_path(checkpoint.resolve())
         if not quiet:
             print(f"checkpoint: {checkpoint}", flush=True)
-        return TrainResult(checkpoint=checkpoint, iterations=iteration, env_steps=steps, progress=progress)
+        return TrainResult(
+            checkpoint=checkpoint, iterations=iteration, env_steps=steps, progress=progress, env_runner_nodes=nodes
+        )
     finally:
         if algo is not None:
-            logdir = getattr(algo, "logdir", None)
-            algo.stop()
-            # the Trainable base class makes an (unused) directory under ~/ray_results: remove it if empty
-            if logdir and os.path.isdir(logdir) and not os.listdir(logdir):
-                os.rmdir(logdir)
+            stop_algorithm(algo)
         if started_ray:
             ray.shutdown()
 

@@ -6,7 +6,7 @@
     python -m agents.robustness --policies random,frontier,revisit,ppo=runs/ppo/model.zip \\
         --layouts uniform,loop --seeds 5 --seed 0 --steps 300 --out eval/robustness
     # score episodes recorded before (this module: nothing but the library)
-    python -m seif_gym.evaluate --episodes eval/robustness/episodes --filters seif-k8,eseif,ekf --out eval/rescored
+    python -m seif_gym.evaluate --episodes eval/robustness/episodes --filters seif-k8,eseif,ekf --out eval/replayed
 
 An episode (:class:`~seif_gym.episodes.Episode`) of a ``SeifExplore`` env is
 **recorded once** with :class:`~seif_gym.episodes.EpisodeRecorder` (the
@@ -885,7 +885,8 @@ def _parser() -> argparse.ArgumentParser:
                         help="saved episodes (.npz) or folders of them, e.g. eval/robustness/episodes")  # fmt: skip
     parser.add_argument("--filters", default=None, help=f"comma-separated filters (default {','.join(default_filters())})")
     parser.add_argument("--nees-every", type=int, default=1, help="steps between full-covariance NEES (default 1)")
-    parser.add_argument("--out", default="eval/robustness", help="output folder (default eval/robustness)")
+    parser.add_argument("--out", default="eval/replayed",
+                        help="output folder (default eval/replayed; not the recording run's, whose files it would replace)")  # fmt: skip
     parser.add_argument("--quiet", action="store_true", help="no progress on stderr")
     for option in _RECORDING_OPTIONS:
         parser.add_argument(option, dest=f"moved_{option[2:].replace('-', '_')}", nargs="?", const=True,

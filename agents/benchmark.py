@@ -13,7 +13,8 @@ agent on the same seeds, deterministic actions, through
 compared with the best baseline (the baseline of lowest mean final map error)
 by the paired per-seed difference of their final map errors, with a 95 %
 Student-t interval; an agent *beats* the best baseline only when that interval
-lies below zero.
+lies below zero (:func:`agents.evaluate.paired_comparison`, the statistics'
+one home).
 
 A shipped policy (:data:`SHIPPED_POLICIES`) runs on every variant whose
 observation and action spaces it accepts; on the others it is left out and
@@ -36,7 +37,6 @@ from __future__ import annotations
 import argparse
 import csv
 import json
-import math
 import sys
 import time
 from collections.abc import Mapping, Sequence
@@ -47,7 +47,6 @@ from typing import Any
 
 import gymnasium as gym
 import numpy as np
-import scipy.stats
 
 import seif_gym
 from agents import BASELINES
@@ -62,7 +61,6 @@ __all__ = [
     "benchmark_variant",
     "default_variants",
     "main",
-    "paired_difference",
     "policy_fits",
     "run_benchmark",
 ]
@@ -156,47 +154,6 @@ def policy_fits(policy: ShippedPolicy, env_id: str) -> bool:
         env.close()
 
 
-def paired_difference(values: Sequence[float], reference: Sequence[float], confidence: float = 0.95) -> dict[str, Any]:
-    """Mean of the per-seed differences ``values - reference``, with its Student-t interval.
-
-    Parameters
-    ----------
-    values, reference : sequence of float
-        One number per seed, the same seeds in the same order.
-    confidence : float
-        Coverage of the interval.
-
-    Returns
-    -------
-    dict
-        ``mean``, ``ci95_low``, ``ci95_high`` (``None`` for one seed) and ``n``.
-
-    Notes
-    -----
-    With ``d_i = values_i - reference_i`` over ``n`` seeds, the interval is
-    ``mean(d) ± t_{(1+c)/2, n-1} s_d / sqrt(n)`` (``s_d`` with ``ddof = 1``):
-    the paired comparison, which removes the seed-to-seed spread that both
-    agents share.
-    """
-    a = np.asarray(values, dtype=np.float64)
-    b = np.asarray(reference, dtype=np.float64)
-    if a.shape != b.shape or a.ndim != 1 or a.size == 0:
-        raise ValueError(f"values and reference must be one number per seed, same length, got {a.shape} and {b.shape}")
-    if not 0.0 < confidence < 1.0:
-        raise ValueError(f"confidence must lie in (0, 1), got {confidence!r}")
-    d = a - b
-    mean = float(d.mean())
-    if d.size < 2:
-        return {"mean": mean, "ci95_low": None, "ci95_high": None, "n": int(d.size)}
-    half = float(scipy.stats.t.ppf(0.5 + 0.5 * confidence, d.size - 1) * d.std(ddof=1) / math.sqrt(d.size))
-    return {"mean": mean, "ci95_low": mean - half, "ci95_high": mean + half, "n": int(d.size)}
-
-
-def _final_errors(rows: Sequence[Mapping[str, Any]], label: str) -> tuple[list[int], list[float]]:
-    mine = sorted((row["seed"], row["final_map_error"]) for row in rows if row["agent"] == label)
-    return [seed for seed, _ in mine], [error for _, error in mine]
-
-
 def benchmark_variant(env_id: str, agents: Sequence[str], episodes: int, seed: int, out: Path,
                       verbose: bool = False) -> list[dict[str, Any]]:  # fmt: skip
     """Run ``agents`` (baseline names and shipped-policy labels) on ``env_id``; the leaderboard rows.
@@ -220,14 +177,14 @@ def benchmark_variant(env_id: str, agents: Sequence[str], episodes: int, seed: i
             specs.append(spec)
             labels[Path(spec).stem], kinds[Path(spec).stem] = name, "policy"
     started = time.perf_counter()
-    rows, summary = evaluate_agents(specs, episodes=episodes, seed=seed, env_id=env_id, env_kwargs={})
+    rows, summary = evaluate_agents(specs, episodes=episodes, seed=seed, env_id=env_id, env_kwargs={}, verbose=verbose)
     write_outputs(rows, summary, out / env_id)
     if verbose:
         print(f"{env_id}: {len(specs)} agents x {episodes} episodes in {time.perf_counter() - started:.0f} s"
               + (f" (left out, spaces differ: {', '.join(skipped)})" if skipped else ""), file=sys.stderr)  # fmt: skip
-    means = {label: entry["final_map_error"]["mean"] for label, entry in summary["agents"].items()}
-    baselines = [label for label in means if kinds[label] == "baseline"]
-    best = min(baselines, key=means.__getitem__) if baselines else None
+    # the paired comparison with the best baseline is agents.evaluate's (one home for the statistics)
+    paired = summary["paired"]
+    best = paired["reference"]
     table: list[dict[str, Any]] = []
     for label, entry in summary["agents"].items():
         row: dict[str, Any] = {
@@ -238,21 +195,12 @@ def benchmark_variant(env_id: str, agents: Sequence[str], episodes: int, seed: i
             "return": entry["return"]["mean"], "best_baseline": labels[best] if best else None,
             "difference": None, "difference_ci95_low": None, "difference_ci95_high": None, "verdict": "",
         }  # fmt: skip
-        if best is not None and label != best:
-            seeds, mine = _final_errors(rows, label)
-            best_seeds, theirs = _final_errors(rows, best)
-            assert seeds == best_seeds  # every agent runs on the same seeds
-            paired = paired_difference(mine, theirs)
-            row["difference"], row["difference_ci95_low"] = paired["mean"], paired["ci95_low"]
-            row["difference_ci95_high"] = paired["ci95_high"]
-            if paired["ci95_high"] is not None and paired["ci95_high"] < 0.0:
-                row["verdict"] = "beats"
-            elif paired["ci95_low"] is not None and paired["ci95_low"] > 0.0:
-                row["verdict"] = "worse"
-            else:
-                row["verdict"] = "tie (interval holds 0)"
-        elif label == best:
+        if label == best:
             row["verdict"] = "best baseline"
+        elif label in paired["agents"]:
+            comparison = paired["agents"][label]
+            row["difference"], row["verdict"] = comparison["mean"], comparison["verdict"]
+            row["difference_ci95_low"], row["difference_ci95_high"] = comparison["ci95_low"], comparison["ci95_high"]
         table.append(row)
     for name in skipped:
         table.append({**dict.fromkeys(LEADERBOARD_COLUMNS), "env_id": env_id, "agent": name, "kind": "policy",

@@ -8,32 +8,8 @@ import math
 
 import numpy as np
 import pytest
-import scipy.stats
 
 from agents import benchmark
-
-
-def test_paired_difference_matches_a_hand_computation():
-    values = [0.30, 0.25, 0.40, 0.35]
-    reference = [0.20, 0.30, 0.30, 0.25]
-    d = np.array([0.10, -0.05, 0.10, 0.10])
-    mean = d.mean()
-    half = scipy.stats.t.ppf(0.975, 3) * d.std(ddof=1) / 2.0
-    result = benchmark.paired_difference(values, reference)
-    assert result["n"] == 4
-    assert result["mean"] == pytest.approx(0.0625)
-    assert result["ci95_low"] == pytest.approx(mean - half)
-    assert result["ci95_high"] == pytest.approx(mean + half)
-    # by hand: s_d = 0.075, t(0.975, 3) = 3.1824, half width = 0.11934
-    assert half == pytest.approx(3.182446 * 0.075 / 2.0, rel=1e-5)
-
-
-def test_paired_difference_one_seed_and_bad_input():
-    assert benchmark.paired_difference([1.0], [0.5]) == {"mean": 0.5, "ci95_low": None, "ci95_high": None, "n": 1}
-    with pytest.raises(ValueError, match="values and reference"):
-        benchmark.paired_difference([1.0, 2.0], [1.0])
-    with pytest.raises(ValueError, match="confidence"):
-        benchmark.paired_difference([1.0, 2.0], [1.0, 1.0], confidence=1.5)
 
 
 def test_default_variants_are_every_layout_of_a_version():

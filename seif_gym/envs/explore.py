@@ -15,7 +15,6 @@ from gymnasium import spaces
 from numpy.typing import NDArray
 
 from seif_gym.metrics import filter_map_error, map_error
-from seif_gym.metrics import map_error_kernel as _map_error  # noqa: F401  (the vector env's kernels import it from here)
 from seif_gym.metrics import nees_kernel as _nees
 from seif_gym.observation import BeliefEncoder, ObservationConfig
 from seif_gym.slam import FILTERS, SEIF, RangeBearingSensor, SlamFilter, VelocityMotionModel, make_filter

@@ -36,7 +36,8 @@ from gymnasium.vector import AutoresetMode, SyncVectorEnv, VectorEnv
 from gymnasium.vector.utils import batch_space, concatenate, create_empty_array
 from numba import njit
 
-from seif_gym.envs.explore import Measurements, SeifExploreEnv, _map_error, _nees
+from seif_gym.envs.explore import Measurements, SeifExploreEnv
+from seif_gym.metrics import map_error_kernel, nees_kernel
 from seif_gym.observation import encode_many
 from seif_gym.slam import _kernels
 from seif_gym.slam.batched import BatchedSEIF
@@ -56,7 +57,7 @@ def _score_many(true_poses, truth, mean, counters, ids, robot_info, robot_links,
         error = np.empty(3)
         n = counters[e, 0]
         estimates = mean[e, 3 : 3 + 2 * n].reshape(n, 2)
-        current = _map_error(estimates, truth[e], ids[e, :n], d_cap)
+        current = map_error_kernel(estimates, truth[e], ids[e, :n], d_cap)
         reward[e] = previous_error[e] - current
         if wall[e]:
             reward[e] -= wall_penalty
@@ -76,8 +77,8 @@ def _score_many(true_poses, truth, mean, counters, ids, robot_info, robot_links,
         cov = _kernels.exact_marginal(robot_info[e], robot_links[e], landmark_info[e], neighbour_index[e],
                                       neighbour_info[e], neighbour_count[e], information_vector[e], mean[e],
                                       block_position[e], n, np.arange(3))  # fmt: skip
-        pose_nees[e] = _nees(error, 0.5 * (cov + cov.T))
-        pose_nees_blanket[e] = _nees(error, blanket_covariances[e])
+        pose_nees[e] = nees_kernel(error, 0.5 * (cov + cov.T))
+        pose_nees_blanket[e] = nees_kernel(error, blanket_covariances[e])
 
 
 class SeifExploreVectorEnv(VectorEnv):

@@ -114,3 +114,33 @@ def test_every_variant_vectorises_equal_to_single_envs(env_id):
             _assert_equal(a, b, f"{env_id} step {t} {name}")
     native.close()
     reference.close()
+
+
+def test_vector_env_passes_checker_style_checks():
+    """What gymnasium's env checker asks of an env, asked of the vector env: spaces, dtypes, seeding, metadata."""
+    env = gym.make_vec("SeifExplore-v1", num_envs=3)
+    assert isinstance(env.metadata["autoreset_mode"], AutoresetMode)
+    assert env.observation_space == gym.vector.utils.batch_space(env.single_observation_space, 3)
+    assert env.action_space == gym.vector.utils.batch_space(env.single_action_space, 3)
+    first, _ = env.reset(seed=5)
+    assert env.observation_space.contains(first)
+    again, _ = env.reset(seed=5)
+    _assert_equal(first, again, "reset(seed) is reproducible")
+    different, _ = env.reset(seed=6)
+    assert not np.array_equal(first["pose"], different["pose"])
+    env.action_space.seed(0)
+    for _ in range(5):
+        obs, rewards, terminated, truncated, infos = env.step(env.action_space.sample())
+        assert env.observation_space.contains(obs)
+        assert rewards.dtype == np.float64 and rewards.shape == (3,)
+        assert terminated.dtype == truncated.dtype == np.bool_ and terminated.shape == (3,)
+        for key, value in infos.items():
+            if not key.startswith("_"):
+                assert infos[f"_{key}"].dtype == np.bool_ and len(value) == 3, key
+    # per-sub-env seeds, None among them: that sub-env draws its own seed
+    obs, _ = env.reset(seed=[1, None, 3])
+    single, _ = gym.make("SeifExplore-v1").reset(seed=3)
+    np.testing.assert_array_equal(obs["belief_map"][2], single["belief_map"])
+    with pytest.raises(ValueError, match="seed"):
+        env.reset(seed=[1, 2])
+    env.close()

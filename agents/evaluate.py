@@ -208,9 +208,13 @@ class SB3Agent(Agent):
     env : gymnasium.Env, optional
         Used only to rebuild a ``VecNormalize`` (its spaces).
     env_factory : callable, optional
-        Builds an env for ``VecNormalize.load`` when ``vecnormalize.pkl``
-        lies next to ``path``; its observation normalisation (``obs_rms``)
-        is then applied to every observation (statistics frozen).
+        Builds an env for ``VecNormalize.load`` when the model's
+        normalisation statistics are found
+        (:func:`agents.checkpoints.vecnormalize_path`: a checkpoint's
+        ``PREFIX_vecnormalize_<N>_steps.pkl``, else ``vecnormalize.pkl``
+        in the model's folder or rl-zoo3's ``<EnvId>/vecnormalize.pkl``); its
+        observation normalisation (``obs_rms``) is then applied to every
+        observation (statistics frozen).
     """
 
     name = "sb3"
@@ -222,8 +226,11 @@ class SB3Agent(Agent):
         self.path = Path(path)
         self.model = PPO.load(self.path, device="cpu")
         self.vecnormalize = None
-        stats_path = self.path.parent / "vecnormalize.pkl"
-        if stats_path.exists():
+        from agents.checkpoints import vecnormalize_path
+
+        # the statistics saved with this very model (a checkpoint's own, never a later moment's)
+        stats_path = vecnormalize_path(self.path)
+        if stats_path is not None:
             from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
 
             factory = env_factory if env_factory is not None else (lambda: env)

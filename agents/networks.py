@@ -1,11 +1,25 @@
-"""Feature extractors for SB3 policies on SeifExplore observations."""
+"""Feature extractor and policy for SB3 on SeifExplore observations.
+
+:class:`BeliefPolicy` is SB3's ``MultiInputPolicy`` with :class:`BeliefExtractor`
+as its default feature extractor. Configs name it by its dotted path
+(``policy: agents.networks.BeliefPolicy``), which rl-zoo3 imports; a
+``policy_kwargs`` string naming ``BeliefExtractor`` would not work there, as
+rl-zoo3 evaluates that string in its own namespace. Keeping the extractor in
+the policy's defaults also survives rl-zoo3's Optuna sampler, which replaces
+``policy_kwargs`` with its own ``net_arch`` and ``activation_fn``.
+"""
 
 from __future__ import annotations
 
+from typing import Any
+
 import gymnasium as gym
 import torch
+from stable_baselines3.common.policies import MultiInputActorCriticPolicy
 from stable_baselines3.common.torch_layers import BaseFeaturesExtractor
 from torch import nn
+
+__all__ = ["BeliefExtractor", "BeliefPolicy"]
 
 
 class BeliefExtractor(BaseFeaturesExtractor):
@@ -27,7 +41,10 @@ class BeliefExtractor(BaseFeaturesExtractor):
     """
 
     def __init__(self, observation_space: gym.spaces.Dict, map_features: int = 128) -> None:
-        channels, height, width = observation_space["belief_map"].shape
+        shape = observation_space["belief_map"].shape
+        if shape is None or len(shape) != 3:
+            raise ValueError(f"observation_space['belief_map'] must be C x H x W, got shape {shape}")
+        channels, height, width = shape
         vector_keys = [key for key in observation_space.spaces if key != "belief_map"]
         vector_size = sum(int(torch.tensor(observation_space[key].shape).prod()) for key in vector_keys)
         super().__init__(observation_space, features_dim=map_features + vector_size)
@@ -46,6 +63,23 @@ class BeliefExtractor(BaseFeaturesExtractor):
         self.map_head = nn.Sequential(nn.Linear(flat, map_features), nn.ReLU())
 
     def forward(self, observations: dict[str, torch.Tensor]) -> torch.Tensor:
+        """The belief map's embedding followed by the flattened vector entries, per batch row."""
         belief = self.map_head(self.cnn(observations["belief_map"]))
         vectors = [observations[key].flatten(start_dim=1) for key in self.vector_keys]
         return torch.cat([belief, *vectors], dim=1)
+
+
+class BeliefPolicy(MultiInputActorCriticPolicy):
+    """SB3's ``MultiInputPolicy`` (actor-critic) with :class:`BeliefExtractor` by default.
+
+    Takes every argument of
+    :class:`~stable_baselines3.common.policies.MultiInputActorCriticPolicy`;
+    only the default of ``features_extractor_class`` differs. Its modules
+    (and so its ``state_dict`` keys) are those of a ``MultiInputPolicy``
+    built with ``features_extractor_class=BeliefExtractor``, so weights move
+    between the two (``--init-from`` of a model saved either way).
+    """
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        kwargs.setdefault("features_extractor_class", BeliefExtractor)
+        super().__init__(*args, **kwargs)

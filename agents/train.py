@@ -1,35 +1,67 @@
-"""Train an exploration policy on a SeifExplore env with stable-baselines3.
+r"""Train an exploration policy on a SeifExplore env: rl-zoo3's ``ExperimentManager`` on the project's config.
 
 Usage::
 
-    python -m agents.train --algo ppo --env SeifExplore-v1 --timesteps 2000000 --out runs/ppo
-    python -m agents.train --env SeifExplore-v1 --wrapper agents.adversary:SeifVsEkfReward --out runs/adversary
+    python -m agents.train --env SeifExplore-v0 --seed 8                    # the shipped policy's recipe
+    python -m agents.train --env SeifExplore-v1 --timesteps 200000 --out runs/ppo_v1
+    python -m agents.train --env SeifExplore-v0 --init-from runs/ppo_v1/best_map_error/model.zip \\
+        --hyperparams learning_rate=1e-4 --timesteps 250000
 
-Hyperparameters come from ``agents/hyperparams/<algo>.yml`` (rl-zoo3's
-format: one entry per env id with ``n_envs``, ``normalize``,
-``policy_kwargs`` and the algorithm's keyword arguments); ``--env-kwargs``
-(JSON) and ``--hyperparams key=value`` override them. ``--wrapper module:Class``
-(with ``--wrapper-kwargs`` JSON) wraps every env, for training and evaluation
-(e.g. the adversarial reward of :mod:`agents.adversary`). The run writes to
-``--out``:
+The config is ``agents/hyperparams/<algo>.yml`` (``--conf-file`` for another),
+in rl-zoo3's format, read by rl-zoo3 itself: ``agents.train`` builds an
+``rl_zoo3.exp_manager.ExperimentManager`` (as ``python -m rl_zoo3.train``
+does), so every key of the format (schedules such as ``lin_3e-4``,
+``normalize``, ``env_wrapper``, ``vec_env_wrapper``, ``callback``,
+``frame_stack``, ``monitor_kwargs``, ``policy`` by dotted name, ...) means
+here what it means there, and a run of either command is read by
+``rl_zoo3.enjoy`` and ``rl_zoo3.record_video``. On top of rl-zoo3 it adds:
 
-=========================  =====================================================
-``model.zip``              the final model
-``vecnormalize.pkl``       reward/observation normalisation statistics (if used)
-``best/best_model.zip``    the best model of the ``EvalCallback``
-``checkpoints/``           periodic checkpoints
-``tb/``                    TensorBoard logs (``tensorboard --logdir OUT/tb``)
-``config.json``            the exact hyperparameters, env kwargs and seed used
-=========================  =====================================================
+* ``--vec-env native`` (the default): the env's own vector env
+  (:class:`agents.sb3_vec_env.NativeVecEnv`, all envs in compiled calls)
+  when the config wraps no single env; a config with an ``env_wrapper``
+  (the shipped one: the coverage shaping) runs ``dummy``;
+* checkpoints every ``--checkpoint-freq`` steps *with* their normalisation
+  statistics (``rl_model_<N>_steps.zip`` beside
+  ``rl_model_vecnormalize_<N>_steps.pkl``; rl-zoo3's ``--save-freq`` saves
+  the model alone);
+* the task's callbacks (:mod:`agents.callbacks`), also when a config lacks
+  them: the task's metrics in TensorBoard and validation on fixed seeds that
+  keeps ``best_map_error/model.zip`` (``--eval-freq``, ``--eval-episodes``;
+  rl-zoo3's own reward-based ``EvalCallback`` is off);
+* ``--init-from MODEL.zip``: start from a saved model's weights *and* its
+  normalisation statistics (found by :func:`agents.checkpoints.vecnormalize_path`),
+  with this run's hyperparameters (fine-tuning);
+* ``--out DIR``: the run's folder exactly (default: rl-zoo3's
+  ``-f logs`` layout, ``logs/<algo>/<EnvId>_<N>``, which ``enjoy -f logs``
+  finds).
+
+A run's folder::
+
+    <EnvId>.zip                       the final model (rl-zoo3's name)
+    <EnvId>/vecnormalize.pkl          its normalisation statistics
+    <EnvId>/config.yml, args.yml      the hyperparameters used and the arguments (rl-zoo3's)
+    best_map_error/model.zip          the lowest mean final map error on the validation seeds ...
+    best_map_error/vecnormalize.pkl   ... and its statistics
+    map_error_evaluations.csv         one row per validation
+    rl_model_<N>_steps.zip            checkpoints, with rl_model_vecnormalize_<N>_steps.pkl
+    tb/                               TensorBoard (tensorboard --logdir DIR/tb)
+    train_time.json                   seconds and steps of model.learn
+
+Progress: a progress bar and SB3's log table; ``--quiet`` prints nothing
+(errors aside).
 """
 
 from __future__ import annotations
 
 import argparse
-import functools
+import contextlib
+import copy
+import io
 import json
+import os
+import sys
 import time
-from dataclasses import dataclass, field
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -37,63 +69,14 @@ import gymnasium as gym
 import yaml
 
 import seif_gym  # noqa: F401  (registers the envs)
+from agents.hyperparams import HYPERPARAMS_DIR
 
-HYPERPARAMS_DIR = Path(__file__).parent / "hyperparams"
-ALGOS = ("ppo", "sac")
-
-#: Keys of a hyperparameter entry that are not keyword arguments of the algorithm.
-_RUN_KEYS = ("n_envs", "n_timesteps", "policy", "normalize", "env_kwargs", "policy_kwargs")
-
-
-@dataclass(frozen=True)
-class TrainConfig:
-    """Everything one training run needs, resolved from YAML and the command line."""
-
-    algo: str
-    env_id: str
-    timesteps: int
-    out: Path
-    seed: int = 0
-    n_envs: int = 8
-    policy: str = "MultiInputPolicy"
-    normalize: dict[str, Any] = field(default_factory=dict)
-    policy_kwargs: dict[str, Any] = field(default_factory=dict)
-    env_kwargs: dict[str, Any] = field(default_factory=dict)
-    algo_kwargs: dict[str, Any] = field(default_factory=dict)
-    eval_freq: int = 50_000
-    eval_episodes: int = 10
-    checkpoint_freq: int = 250_000
-    vec_env: str = "native"
-    init_from: str | None = None
-    progress_bar: bool = True
-    wrapper: str | None = None
-    wrapper_kwargs: dict[str, Any] = field(default_factory=dict)
+#: The algorithms of rl-zoo3 (``rl_zoo3.ALGOS``); a config ``agents/hyperparams/<algo>.yml`` exists for ``ppo``.
+ALGOS = ("a2c", "ddpg", "dqn", "ppo", "sac", "td3", "ars", "crossq", "qrdqn", "tqc", "trpo", "ppo_lstm")
+VEC_ENVS = ("native", "dummy", "subproc")
 
 
-def _literal(text: Any) -> Any:
-    """Evaluate rl-zoo3's Python-literal strings (``dict(...)``, ``nn.ReLU``) safely."""
-    if not isinstance(text, str):
-        return text
-    import torch.nn as nn
-
-    from agents.networks import BeliefExtractor
-
-    names = {"dict": dict, "nn": nn, "True": True, "False": False, "BeliefExtractor": BeliefExtractor}
-    return eval(text, {"__builtins__": {}}, names)  # noqa: S307
-
-
-def load_hyperparams(algo: str, env_id: str) -> dict[str, Any]:
-    """The YAML entry of ``env_id`` in ``hyperparams/<algo>.yml``."""
-    path = HYPERPARAMS_DIR / f"{algo}.yml"
-    if not path.exists():
-        raise ValueError(f"no hyperparameters for algo {algo!r} ({path} missing)")
-    entries = yaml.safe_load(path.read_text())
-    if env_id not in entries:
-        raise ValueError(f"{path.name} has no entry for env {env_id!r}; entries: {sorted(entries)}")
-    return dict(entries[env_id])
-
-
-def load_wrapper(spec: str | None):
+def load_wrapper(spec: str | None) -> type | None:
     """The gymnasium wrapper class named ``module:Class`` (``None`` for none)."""
     if not spec:
         return None
@@ -104,18 +87,14 @@ def load_wrapper(spec: str | None):
         raise ValueError(f"--wrapper takes module:Class, got {spec!r}")
     wrapper = getattr(importlib.import_module(module_name), class_name, None)
     if wrapper is None:
-        raise ValueError(f"module {module_name!r} has no {class_name!r}")
+        raise ValueError(f"--wrapper: module {module_name!r} has no {class_name!r}")
     return wrapper
 
 
-def _wrapped_env(env_id: str, wrapper: str, wrapper_kwargs: dict[str, Any], **env_kwargs: Any) -> gym.Env:
-    """``wrapper(gym.make(env_id, **env_kwargs), **wrapper_kwargs)``; module level, so subprocess envs can pickle it."""
-    return load_wrapper(wrapper)(gym.make(env_id, **env_kwargs), **wrapper_kwargs)
-
-
 def _parse_override(text: str) -> tuple[str, Any]:
+    """``key=value`` with a YAML value (``learning_rate=1e-4``, ``env_wrapper=null``, ``normalize=dict(...)``)."""
     key, sep, value = text.partition("=")
-    if not sep:
+    if not sep or not key:
         raise argparse.ArgumentTypeError(f"--hyperparams takes key=value, got {text!r}")
     parsed = yaml.safe_load(value)
     if isinstance(parsed, str):  # YAML 1.1 reads "1e-4" as a string
@@ -126,167 +105,353 @@ def _parse_override(text: str) -> tuple[str, Any]:
     return key, parsed
 
 
-def resolve_config(args: argparse.Namespace) -> TrainConfig:
-    """Merge the YAML entry and the command-line arguments into a :class:`TrainConfig`."""
-    params = load_hyperparams(args.algo, args.env)
-    for key, value in args.hyperparams or []:
-        params[key] = value
-    env_kwargs = dict(params.get("env_kwargs") or {})
-    env_kwargs.update(json.loads(args.env_kwargs) if args.env_kwargs else {})
-    normalize = _literal(params.get("normalize", False))
-    if normalize is True:
-        normalize = {}
-    return TrainConfig(
-        algo=args.algo,
-        env_id=args.env,
-        timesteps=int(args.timesteps if args.timesteps is not None else params.get("n_timesteps", 1e6)),
-        out=Path(args.out),
-        seed=args.seed,
-        n_envs=int(args.n_envs or params.get("n_envs", 8)),
-        policy=params.get("policy", "MultiInputPolicy"),
-        normalize=normalize or {},
-        policy_kwargs=_literal(params.get("policy_kwargs", {})) or {},
-        env_kwargs=env_kwargs,
-        algo_kwargs={k: v for k, v in params.items() if k not in _RUN_KEYS},
-        eval_freq=args.eval_freq,
-        eval_episodes=args.eval_episodes,
-        checkpoint_freq=args.checkpoint_freq,
-        vec_env=args.vec_env,
-        progress_bar=not args.no_progress_bar,
-        wrapper=args.wrapper,
-        wrapper_kwargs=json.loads(args.wrapper_kwargs) if args.wrapper_kwargs else {},
-        init_from=args.init_from,
-    )
+def _positive_or_off(text: str) -> int:
+    value = int(text)
+    if value == 0 or value < -1:
+        raise argparse.ArgumentTypeError(f"expected a positive number of steps or -1 (off), got {text}")
+    return value
 
 
-def train(config: TrainConfig):
-    """Train and save; returns the trained model."""
-    from stable_baselines3 import PPO, SAC
-    from stable_baselines3.common.callbacks import CheckpointCallback, EvalCallback
-    from stable_baselines3.common.env_util import make_vec_env
-    from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecNormalize
-
-    algo_class = {"ppo": PPO, "sac": SAC}[config.algo]
-    out = config.out
-    out.mkdir(parents=True, exist_ok=True)
-    vec_cls = SubprocVecEnv if config.vec_env == "subproc" and config.n_envs > 1 else DummyVecEnv
-    # "seif_gym:<id>" makes worker processes (forkserver/spawn) import seif_gym, which registers the id
-    env_id = config.env_id if ":" in config.env_id else f"seif_gym:{config.env_id}"
-    if config.wrapper:
-        # the reward wrapper (e.g. agents.adversary:SeifVsEkfReward) goes *inside* SB3's Monitor, so that the
-        # logged episode returns and the EvalCallback's best model use the wrapped reward (make_vec_env's
-        # wrapper_class would sit outside the Monitor, which would then log the env's own reward)
-        load_wrapper(config.wrapper)  # fail early
-        env_id = functools.partial(_wrapped_env, env_id, config.wrapper, dict(config.wrapper_kwargs))
-    if config.vec_env == "native" and not config.wrapper:
-        # the native vector env (gym.make_vec: N envs in compiled calls) behind SB3's VecEnv interface
-        from stable_baselines3.common.vec_env import VecMonitor
-
-        from agents.sb3_vec_env import NativeVecEnv
-
-        env = VecMonitor(NativeVecEnv(env_id, config.n_envs, seed=config.seed, env_kwargs=config.env_kwargs))
-        # the same wrappers around the evaluation env, so that EvalCallback can copy the normalisation
-        eval_env = VecMonitor(NativeVecEnv(env_id, 1, seed=config.seed + 10_000, env_kwargs=config.env_kwargs))
-    else:  # a reward wrapper needs single envs
-        env = make_vec_env(env_id, n_envs=config.n_envs, seed=config.seed, vec_env_cls=vec_cls,
-                           env_kwargs=config.env_kwargs)  # fmt: skip
-        eval_env = make_vec_env(env_id, n_envs=1, seed=config.seed + 10_000, env_kwargs=config.env_kwargs)
-    if config.normalize:
-        env = VecNormalize(env, **config.normalize)
-        eval_env = VecNormalize(eval_env, training=False, norm_reward=False, **{k: v for k, v in config.normalize.items() if k != "norm_reward"})
-    (out / "config.json").write_text(
-        json.dumps(
-            {
-                "algo": config.algo,
-                "env_id": config.env_id,
-                "timesteps": config.timesteps,
-                "seed": config.seed,
-                "n_envs": config.n_envs,
-                "policy": config.policy,
-                "normalize": config.normalize,
-                "policy_kwargs": repr(config.policy_kwargs),
-                "env_kwargs": config.env_kwargs,
-                "algo_kwargs": config.algo_kwargs,
-                "wrapper": config.wrapper,
-                "wrapper_kwargs": config.wrapper_kwargs,
-            },
-            indent=2,
-        )
-    )
-    model = algo_class(
-        config.policy,
-        env,
-        seed=config.seed,
-        verbose=0,
-        tensorboard_log=str(out / "tb"),
-        policy_kwargs=config.policy_kwargs,
-        device="cpu",
-        **config.algo_kwargs,
-    )
-    if config.init_from:
-        # continue from a saved model's weights, with this run's hyperparameters
-        model.set_parameters(config.init_from, exact_match=True, device="cpu")
-    callbacks = [
-        CheckpointCallback(
-            save_freq=max(config.checkpoint_freq // config.n_envs, 1),
-            save_path=str(out / "checkpoints"),
-            name_prefix="model",
-            save_vecnormalize=True,
-        ),
-        EvalCallback(
-            eval_env,
-            best_model_save_path=str(out / "best"),
-            log_path=str(out / "eval"),
-            eval_freq=max(config.eval_freq // config.n_envs, 1),
-            n_eval_episodes=config.eval_episodes,
-            deterministic=True,
-        ),
-    ]
-    started = time.perf_counter()
-    model.learn(total_timesteps=config.timesteps, callback=callbacks, progress_bar=config.progress_bar)
-    elapsed = time.perf_counter() - started
-    model.save(out / "model.zip")
-    if isinstance(env, VecNormalize):
-        env.save(str(out / "vecnormalize.pkl"))
-    (out / "train_time.json").write_text(json.dumps({"seconds": elapsed, "timesteps": config.timesteps}))
-    print(f"trained {config.timesteps} steps in {elapsed:.0f} s ({config.timesteps / elapsed:.0f} steps/s); saved {out / 'model.zip'}")
-    env.close()
-    eval_env.close()
-    return model
+def _json_object(text: str) -> dict[str, Any]:
+    try:
+        value = json.loads(text)
+    except json.JSONDecodeError as error:
+        raise argparse.ArgumentTypeError(f"not JSON: {error}") from error
+    if not isinstance(value, dict):
+        raise argparse.ArgumentTypeError(f"expected a JSON object, got {text!r}")
+    return value
 
 
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--algo", choices=ALGOS, default="ppo")
     parser.add_argument("--env", default="SeifExplore-v1", help="a registered env id")
-    parser.add_argument("--env-kwargs", default=None, help='JSON dict passed to gym.make, e.g. \'{"layout": "loop"}\'')
-    parser.add_argument("--timesteps", type=int, default=None, help="default: n_timesteps of the YAML entry")
-    parser.add_argument("--out", required=True, help="output directory")
+    parser.add_argument(
+        "--conf-file",
+        default=None,
+        help="config in rl-zoo3's format: a .yml/.py path or a module name (default: agents/hyperparams/<algo>.yml)",
+    )
+    parser.add_argument(
+        "--env-kwargs",
+        type=_json_object,
+        default=None,
+        help='JSON object passed to gym.make (over the entry\'s env_kwargs), e.g. \'{"layout": "loop"}\'',
+    )
+    parser.add_argument(
+        "-n",
+        "--timesteps",
+        "--n-timesteps",
+        dest="timesteps",
+        type=int,
+        default=None,
+        help="default: n_timesteps of the config's entry",
+    )
+    parser.add_argument("--out", default=None, help="the run's folder (default: rl-zoo3's layout under --log-folder)")
+    parser.add_argument(
+        "-f", "--log-folder", default="logs", help="rl-zoo3's log folder: runs go to LOG_FOLDER/ALGO/ENV_N"
+    )
     parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--n-envs", type=int, default=None)
-    parser.add_argument("--vec-env", choices=("native", "subproc", "dummy"), default="native",
-                        help="native: gym.make_vec's vector env (all envs in compiled calls; the default), "
-                             "dummy: single envs one after another in this process, subproc: one process each; "
-                             "with --wrapper, native falls back to dummy")
-    parser.add_argument("--hyperparams", nargs="*", type=_parse_override, help="overrides, e.g. learning_rate=1e-4")
-    parser.add_argument("--eval-freq", type=int, default=50_000)
-    parser.add_argument("--eval-episodes", type=int, default=10)
-    parser.add_argument("--checkpoint-freq", type=int, default=250_000)
-    parser.add_argument("--no-progress-bar", action="store_true")
-    parser.add_argument("--init-from", default=None, help="a saved .zip whose weights start this run (fine-tuning)")
-    parser.add_argument("--wrapper", default=None,
-                        help="module:Class of a gymnasium wrapper applied to every env (training and evaluation), "
-                        "e.g. agents.adversary:SeifVsEkfReward")
-    parser.add_argument("--wrapper-kwargs", default=None, help="JSON dict of the wrapper's keyword arguments")
+    parser.add_argument("--n-envs", type=int, default=None, help="overrides the entry's n_envs")
+    parser.add_argument(
+        "--vec-env",
+        choices=VEC_ENVS,
+        default="native",
+        help="native: the env's own vector env (all envs in compiled calls; the default), "
+        "dummy: single envs one after another in this process, subproc: one process each; "
+        "a config or --wrapper that wraps single envs turns native into dummy",
+    )
+    parser.add_argument(
+        "--hyperparams",
+        nargs="*",
+        type=_parse_override,
+        default=[],
+        action="extend",
+        help="overrides of the entry, key=value with YAML values: learning_rate=1e-4 env_wrapper=null "
+        "(may be repeated)",
+    )
+    parser.add_argument(
+        "--eval-freq",
+        type=_positive_or_off,
+        default=None,
+        help="steps between validations (default: the config's MapErrorEvalCallback, else 50000; -1: off)",
+    )
+    parser.add_argument(
+        "--eval-episodes", type=int, default=None, help="validation seeds (default: the config's, else 10)"
+    )
+    parser.add_argument(
+        "--checkpoint-freq",
+        type=_positive_or_off,
+        default=250_000,
+        help="steps between checkpoints with their statistics (-1: none)",
+    )
+    parser.add_argument(
+        "--init-from",
+        default=None,
+        help="a saved .zip whose weights and normalisation statistics start this run (fine-tuning)",
+    )
+    parser.add_argument(
+        "--wrapper",
+        default=None,
+        help="module:Class of a gymnasium wrapper for every training env, in place of the "
+        "config's env_wrapper (e.g. agents.adversary:SeifVsEkfReward)",
+    )
+    parser.add_argument(
+        "--wrapper-kwargs", type=_json_object, default=None, help="JSON object of the wrapper's arguments"
+    )
+    parser.add_argument("--device", default="cpu", help="torch device (rl-zoo3's default is auto)")
+    parser.add_argument("--quiet", action="store_true", help="print nothing: no progress bar, no log table")
+    parser.add_argument("--no-progress-bar", action="store_true", help="no progress bar (the log table stays)")
     return parser
 
 
-def main(argv: list[str] | None = None) -> None:
-    args = build_parser().parse_args(argv)
+def _config_for(args: argparse.Namespace) -> str:
+    if args.conf_file is not None:
+        return str(args.conf_file)
+    path = HYPERPARAMS_DIR / f"{args.algo}.yml"
+    if not path.is_file():
+        raise ValueError(f"no config for --algo {args.algo} ({path} missing); pass --conf-file")
+    return str(path)
+
+
+def _overrides(args: argparse.Namespace) -> dict[str, Any]:
+    """The command line's changes of the config's entry, as rl-zoo3's ``--hyperparams`` dict."""
+    overrides = dict(args.hyperparams or [])
+    if args.n_envs is not None:
+        if args.n_envs < 1:
+            raise ValueError(f"--n-envs must be at least 1, got {args.n_envs}")
+        overrides["n_envs"] = args.n_envs
+    if args.wrapper_kwargs is not None and not args.wrapper:
+        raise ValueError("--wrapper-kwargs needs --wrapper")
+    if args.wrapper:
+        load_wrapper(args.wrapper)  # fail before any env is built
+        module_name, _, class_name = args.wrapper.partition(":")
+        overrides["env_wrapper"] = [{f"{module_name}.{class_name}": dict(args.wrapper_kwargs or {})}]
+    return overrides
+
+
+@contextlib.contextmanager
+def _maybe_silent(quiet: bool) -> Iterator[None]:
+    """Swallow stdout when ``quiet``: rl-zoo3 prints its steps (config, folders) whatever its verbosity."""
+    if quiet:
+        with contextlib.redirect_stdout(io.StringIO()):
+            yield
+    else:
+        yield
+
+
+def _experiment_class() -> type:
+    """:class:`SeifExperiment`, defined on first use: rl-zoo3 (and optuna with it) is imported only to train."""
+    from rl_zoo3.exp_manager import ExperimentManager
+    from stable_baselines3.common.callbacks import CheckpointCallback
+    from stable_baselines3.common.vec_env import VecEnv, VecFrameStack, VecMonitor
+
+    from agents.callbacks import MapErrorEvalCallback, TaskMetricsCallback
+
+    class SeifExperiment(ExperimentManager):
+        """rl-zoo3's ``ExperimentManager`` with the native vector env, paired checkpoints and the task's callbacks.
+
+        Parameters
+        ----------
+        args : argparse.Namespace
+            :func:`build_parser`'s arguments.
+        """
+
+        def __init__(self, args: argparse.Namespace) -> None:
+            self.options = args
+            self.native = args.vec_env == "native"
+            # what rl-zoo3 writes to args.yml and its enjoy/record_video read back (env_kwargs)
+            zoo_args = argparse.Namespace(**{k: v for k, v in vars(args).items() if k not in ("hyperparams",)})
+            zoo_args.env_kwargs = args.env_kwargs
+            zoo_args.hyperparams = _overrides(args)
+            zoo_args.conf_file = _config_for(args)
+            super().__init__(
+                zoo_args,
+                args.algo,
+                args.env,
+                args.log_folder,
+                tensorboard_log="",
+                n_timesteps=args.timesteps if args.timesteps is not None else -1,
+                eval_freq=-1,  # rl-zoo3's reward-based evaluation: the task's validation replaces it
+                save_freq=-1,  # rl-zoo3's checkpoints leave the statistics out: ours keep them beside
+                hyperparams=zoo_args.hyperparams,
+                env_kwargs=args.env_kwargs,
+                seed=args.seed,
+                log_interval=-1,  # SB3's default (rl-zoo3's constructor default, 0, is not valid for learn)
+                verbose=0 if args.quiet else 1,
+                vec_env_type="subproc" if args.vec_env == "subproc" else "dummy",
+                device=args.device,
+                config=zoo_args.conf_file,
+                show_progress=not (args.quiet or args.no_progress_bar),
+            )
+            if args.out is not None:
+                self.save_path = str(Path(args.out))
+                self.params_path = os.path.join(self.save_path, self.env_name)
+            self.tensorboard_log = os.path.join(self.save_path, "tb")
+
+        # -- envs ------------------------------------------------------------------------------------
+        def uses_native(self) -> bool:
+            """Whether the training envs are the native vector env (no single-env wrapper in the way)."""
+            return self.native and self.env_wrapper is None
+
+        def create_envs(self, n_envs: int, eval_env: bool = False, no_log: bool = False) -> VecEnv:
+            if not self.uses_native():
+                return super().create_envs(n_envs, eval_env=eval_env, no_log=no_log)
+            from agents.sb3_vec_env import NativeVecEnv
+
+            env_kwargs = self.eval_env_kwargs if eval_env else self.env_kwargs
+            env: VecEnv = NativeVecEnv(self.env_name.gym_id, n_envs, seed=self.seed, env_kwargs=env_kwargs)
+            # the log rl-zoo3's Monitor would write, in the run's folder (agents.callbacks.run_folder reads it)
+            log = None if eval_env or no_log else os.path.join(self.save_path, "monitor.csv")
+            env = VecMonitor(env, filename=log, info_keywords=tuple(self.monitor_kwargs.get("info_keywords", ())))
+            if self.vec_env_wrapper is not None:
+                env = self.vec_env_wrapper(env)
+            env = self._maybe_normalize(env, eval_env)
+            if self.frame_stack is not None:
+                env = VecFrameStack(env, self.frame_stack)
+            return env
+
+        # -- callbacks -------------------------------------------------------------------------------
+        def create_callbacks(self) -> None:
+            super().create_callbacks()  # the progress bar
+            options = self.options
+            if options.checkpoint_freq > 0:
+                self.callbacks.append(
+                    CheckpointCallback(
+                        save_freq=max(options.checkpoint_freq // self.n_envs, 1),
+                        save_path=self.save_path,
+                        name_prefix="rl_model",  # rl-zoo3's name: enjoy --load-checkpoint N finds it
+                        save_vecnormalize=True,
+                        verbose=0,
+                    )
+                )
+            evaluations = [c for c in self.callbacks if isinstance(c, MapErrorEvalCallback)]
+            if options.eval_freq == -1:
+                self.callbacks = [c for c in self.callbacks if not isinstance(c, MapErrorEvalCallback)]
+                evaluations = []
+            elif not evaluations:
+                evaluations = [MapErrorEvalCallback()]
+                self.callbacks.append(evaluations[0])
+            for callback in evaluations:
+                # validation on the plain env of this run's id and arguments, results in this run's folder
+                callback.save_path = Path(self.save_path)
+                callback.env_id = self.env_name.gym_id
+                callback.env_kwargs = dict(self.env_kwargs)
+                if options.eval_freq is not None:
+                    callback.eval_freq = options.eval_freq
+                if options.eval_episodes is not None:
+                    if options.eval_episodes < 1:
+                        raise ValueError(f"--eval-episodes must be at least 1, got {options.eval_episodes}")
+                    callback.n_episodes = options.eval_episodes
+                if options.quiet:
+                    callback.verbose = 0
+            if not any(isinstance(c, TaskMetricsCallback) for c in self.callbacks):
+                self.callbacks.append(TaskMetricsCallback())
+
+        # -- fine-tuning -----------------------------------------------------------------------------
+        def init_from(self, model: Any, path: str | os.PathLike) -> Path | None:
+            """Load the weights of the model at ``path`` into ``model`` and its statistics into the training env.
+
+            Returns
+            -------
+            Path or None
+                The statistics loaded (``None``: none saved with that model).
+
+            Raises
+            ------
+            FileNotFoundError
+                If there is no model at ``path``.
+            ValueError
+                If the saved statistics normalise observations and this run does not, or the reverse
+                (the weights would read differently scaled inputs).
+            """
+            from agents.checkpoints import load_vecnormalize_stats, vecnormalize_path
+
+            path = Path(path)
+            if not path.is_file():
+                raise FileNotFoundError(f"--init-from: no model at {path}")
+            model.set_parameters(str(path), exact_match=True, device=self.device)
+            stats_path = vecnormalize_path(path)
+            vec_normalize = model.get_vec_normalize_env()
+            if stats_path is None:
+                if vec_normalize is not None and vec_normalize.norm_obs:
+                    raise ValueError(
+                        f"--init-from: this run normalises observations, but {path} has no statistics beside it"
+                    )
+                return None
+            saved = load_vecnormalize_stats(stats_path)
+            this_norm_obs = vec_normalize is not None and vec_normalize.norm_obs
+            if bool(saved.norm_obs) != this_norm_obs:
+                raise ValueError(
+                    f"--init-from: {stats_path} {'normalises' if saved.norm_obs else 'does not normalise'} "
+                    "observations, "
+                    f"this run {'does' if this_norm_obs else 'does not'}"
+                )
+            if vec_normalize is not None:
+                if vec_normalize.norm_obs:
+                    vec_normalize.obs_rms = copy.deepcopy(saved.obs_rms)
+                vec_normalize.ret_rms = copy.deepcopy(saved.ret_rms)
+            return stats_path
+
+    return SeifExperiment
+
+
+def prepare(args: argparse.Namespace) -> tuple[Any, Any]:
+    """The experiment and its model, ready to learn (config read, envs and callbacks built, ``--init-from`` applied).
+
+    Returns
+    -------
+    experiment : SeifExperiment
+    model : stable_baselines3.common.base_class.BaseAlgorithm
+    """
+    from stable_baselines3.common.utils import set_random_seed
+
     if args.env.split(":")[-1] not in gym.registry:
-        raise SystemExit(f"unknown env {args.env!r}")
-    train(resolve_config(args))
+        raise ValueError(f"--env: unknown env {args.env!r}")
+    set_random_seed(args.seed)  # as rl_zoo3.train does before building the experiment
+    experiment = _experiment_class()(args)
+    with _maybe_silent(args.quiet):
+        model, _ = experiment.setup_experiment()
+    if args.vec_env == "native" and not experiment.uses_native() and not args.quiet:
+        print(
+            "agents.train: the config wraps single envs (env_wrapper), so the envs run in a DummyVecEnv",
+            file=sys.stderr,
+        )
+    if args.init_from:
+        stats = experiment.init_from(model, args.init_from)
+        if not args.quiet:
+            print(
+                f"agents.train: weights from {args.init_from}, statistics from {stats or '(none saved)'}",
+                file=sys.stderr,
+            )
+    return experiment, model
+
+
+def train(args: argparse.Namespace) -> Path:
+    """Train and save; returns the run's folder."""
+    experiment, model = prepare(args)
+    started = time.perf_counter()
+    experiment.learn(model)
+    elapsed = time.perf_counter() - started
+    with _maybe_silent(args.quiet):
+        experiment.save_trained_model(model)
+    folder = Path(experiment.save_path)
+    (folder / "train_time.json").write_text(json.dumps({"seconds": elapsed, "timesteps": int(model.num_timesteps)}))
+    if not args.quiet:
+        print(
+            f"trained {model.num_timesteps} steps in {elapsed:.0f} s ({model.num_timesteps / elapsed:.0f} steps/s); "
+            f"run folder {folder}"
+        )
+    return folder
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        train(args)
+    except (ValueError, FileNotFoundError) as error:
+        raise SystemExit(f"agents.train: {error}") from error
+    return 0
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

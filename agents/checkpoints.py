@@ -1,0 +1,124 @@
+"""Where a saved model's ``VecNormalize`` statistics live, and saving the two together.
+
+A model trained with ``normalize`` acts on normalised observations, so a
+checkpoint is only usable with the statistics of the same moment. Three
+layouts are in use, and :func:`vecnormalize_path` knows all three:
+
+==========================================  ==============================================
+model                                       statistics
+==========================================  ==============================================
+``DIR/PREFIX_<N>_steps.zip``                ``DIR/PREFIX_vecnormalize_<N>_steps.pkl``
+                                            (SB3's ``CheckpointCallback``, as ``agents.train``
+                                            and the runs before it write checkpoints)
+``DIR/model.zip`` (any name not a           ``DIR/vecnormalize.pkl`` (:func:`save_with_vecnormalize`:
+checkpoint's)                               the best model of :class:`~agents.callbacks.MapErrorEvalCallback`;
+                                            ``agents.train``'s final model before rl-zoo3)
+``RUN/<EnvId>.zip``                         ``RUN/<EnvId>/vecnormalize.pkl`` (rl-zoo3's final model)
+==========================================  ==============================================
+
+A checkpoint's name never falls back to another file: statistics of a later
+moment would be applied silently. rl-zoo3's own ``best_model.zip`` and
+``rl_model_<N>_steps.zip`` (``--save-freq``) have no statistics of their own
+(rl-zoo3 keeps one ``vecnormalize.pkl`` per run, overwritten at the end), so
+none is found for them.
+
+>>> from pathlib import Path
+>>> vecnormalize_path(Path("/nonexistent/rl_model_1000_steps.zip")) is None
+True
+"""
+
+from __future__ import annotations
+
+import os
+import pickle
+import re
+from pathlib import Path
+from typing import Any
+
+__all__ = ["load_vecnormalize_stats", "save_with_vecnormalize", "vecnormalize_path"]
+
+#: SB3's ``CheckpointCallback`` names: ``{prefix}_{steps}_steps.zip`` and ``{prefix}_vecnormalize_{steps}_steps.pkl``.
+_CHECKPOINT = re.compile(r"(?P<prefix>.+)_(?P<steps>\d+)_steps")
+
+
+def _as_path(model_path: str | os.PathLike, name: str = "model_path") -> Path:
+    if not isinstance(model_path, (str, os.PathLike)):
+        raise TypeError(f"{name} must be a path, got {type(model_path).__name__}")
+    path = Path(model_path)
+    if path.suffix != ".zip":
+        raise ValueError(f"{name} must name a model's .zip, got {str(path)!r}")
+    return path
+
+
+def vecnormalize_path(model_path: str | os.PathLike) -> Path | None:
+    """The ``VecNormalize`` statistics saved with the model at ``model_path``, or ``None``.
+
+    Parameters
+    ----------
+    model_path : str or PathLike
+        A saved SB3 model (``.zip``).
+
+    Returns
+    -------
+    Path or None
+        The statistics' ``.pkl`` by the rules of this module's table, if that file exists.
+
+    Raises
+    ------
+    TypeError
+        If ``model_path`` is not a path.
+    ValueError
+        If ``model_path`` does not end in ``.zip``.
+    """
+    path = _as_path(model_path)
+    match = _CHECKPOINT.fullmatch(path.stem)
+    if match is not None:
+        candidates = [path.with_name(f"{match['prefix']}_vecnormalize_{match['steps']}_steps.pkl")]
+    else:
+        candidates = [path.with_name("vecnormalize.pkl"), path.parent / path.stem / "vecnormalize.pkl"]
+    return next((candidate for candidate in candidates if candidate.is_file()), None)
+
+
+def save_with_vecnormalize(model: Any, model_path: str | os.PathLike) -> tuple[Path, Path | None]:
+    """Save ``model`` at ``model_path``, and its ``VecNormalize`` where :func:`vecnormalize_path` finds it.
+
+    Parameters
+    ----------
+    model : stable_baselines3.common.base_class.BaseAlgorithm
+        A model; its ``get_vec_normalize_env()`` (if any) is saved beside it.
+    model_path : str or PathLike
+        Where the model goes (``.zip``). A checkpoint name (``PREFIX_<N>_steps.zip``) gets
+        ``PREFIX_vecnormalize_<N>_steps.pkl``; any other name ``vecnormalize.pkl`` in its folder
+        (so give each such model a folder of its own).
+
+    Returns
+    -------
+    model_path : Path
+    stats_path : Path or None
+        ``None`` when the model trains without ``VecNormalize``.
+    """
+    path = _as_path(model_path)
+    if not callable(getattr(model, "save", None)) or not callable(getattr(model, "get_vec_normalize_env", None)):
+        raise TypeError(f"model must be an SB3 model, got {type(model).__name__}")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    model.save(path)
+    vec_normalize = model.get_vec_normalize_env()
+    if vec_normalize is None:
+        return path, None
+    match = _CHECKPOINT.fullmatch(path.stem)
+    name = f"{match['prefix']}_vecnormalize_{match['steps']}_steps.pkl" if match else "vecnormalize.pkl"
+    stats_path = path.with_name(name)
+    vec_normalize.save(str(stats_path))
+    return path, stats_path
+
+
+def load_vecnormalize_stats(stats_path: str | os.PathLike) -> Any:
+    """The ``VecNormalize`` pickled at ``stats_path``, without an env (its ``obs_rms``, ``ret_rms``, flags).
+
+    ``VecNormalize.load`` needs a venv to wrap; copying the running statistics into an
+    existing ``VecNormalize`` (``--init-from``) needs only the object.
+    """
+    if not isinstance(stats_path, (str, os.PathLike)):
+        raise TypeError(f"stats_path must be a path, got {type(stats_path).__name__}")
+    with open(stats_path, "rb") as handle:
+        return pickle.load(handle)  # noqa: S301 (our own training output, as VecNormalize.load)

@@ -28,6 +28,7 @@ from __future__ import annotations
 import csv
 import math
 import os
+import warnings
 from collections import deque
 from collections.abc import Mapping, Sequence
 from pathlib import Path
@@ -201,7 +202,9 @@ class MapErrorEvalCallback(BaseCallback):
         held-out evaluation (``agents.showcase``) from 1000000 on.
     save_path : str, optional
         Folder of the outputs; default: the run's folder (:func:`run_folder`;
-        ``agents.train`` sets it).
+        ``agents.train`` sets it). Where neither is known (rl-zoo3 with
+        ``--vec-env subproc``, or its Optuna trials, which log nothing), the
+        callback warns once and validates and logs without writing files.
     env_id : str, optional
         The env to validate on; default: the training env's id.
     env_kwargs : dict, optional
@@ -255,17 +258,20 @@ class MapErrorEvalCallback(BaseCallback):
     def best_model_path(self) -> Path:
         """Where the best model is (or will be) saved."""
         if self.save_path is None:
-            raise ValueError("save_path is not known before training starts")
+            raise ValueError("MapErrorEvalCallback has no save_path (none given and no run folder found)")
         return self.save_path / "best_map_error" / "model.zip"
 
     def _init_callback(self) -> None:
         if self.save_path is None:
             self.save_path = run_folder(self.training_env)
         if self.save_path is None:
-            raise ValueError(
-                "MapErrorEvalCallback: save_path is needed (no monitor log of the training env shows the run's folder)"
+            warnings.warn(
+                "MapErrorEvalCallback: no save_path and no monitor log of the training env shows the run's folder; "
+                "validating without saving the best model (give the callback a save_path to keep it)",
+                stacklevel=2,
             )
-        self.save_path.mkdir(parents=True, exist_ok=True)
+        else:
+            self.save_path.mkdir(parents=True, exist_ok=True)
         if self.env_id is None or self.env_kwargs is None:
             spec = self.training_env.get_attr("spec", [0])[0]
             if spec is None:
@@ -321,10 +327,12 @@ class MapErrorEvalCallback(BaseCallback):
         if row["best"]:
             self.best_map_error = float(errors.mean())
             self.best_timesteps = int(self.num_timesteps)
-            save_with_vecnormalize(self.model, self.best_model_path)
         self.evaluations.append(row)
         self._last_eval = self.num_timesteps
-        self._write_row(row)
+        if self.save_path is not None:
+            if row["best"]:
+                save_with_vecnormalize(self.model, self.best_model_path)
+            self._write_row(row)
         for key in ("final_map_error", "final_map_error_ci95", "landmarks_mapped", "pose_rmse"):
             self.logger.record(f"eval/{key}", row[key])
         self.logger.record("eval/best_final_map_error", self.best_map_error)

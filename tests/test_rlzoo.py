@@ -174,6 +174,55 @@ def test_record_video_of_the_trained_model(zoo_run, tmp_path):
     assert len(videos) == 1 and videos[0].stat().st_size > 1000, videos
 
 
+def test_rl_zoo3_tunes_with_the_shipped_config(tmp_path):
+    """One Optuna trial: the sampler's policy_kwargs replace the config's, the belief extractor stays (the policy's)."""
+    from stable_baselines3 import PPO
+
+    from agents.networks import BeliefExtractor
+
+    trials = tmp_path / "trials"
+    args = [
+        "-m",
+        "rl_zoo3.train",
+        "--algo",
+        "ppo",
+        "--env",
+        ENV_ID,
+        "--gym-packages",
+        "seif_gym",
+        "--conf-file",
+        "agents.hyperparams.ppo",
+        "-optimize",
+        "--n-trials",
+        "1",
+        "--sampler",
+        "random",
+        "--pruner",
+        "none",
+        "-n",
+        "512",
+        "--n-evaluations",
+        "1",
+        "--eval-episodes",
+        "1",
+        "--seed",
+        "0",
+        "--no-optim-plots",
+        "--hyperparams",
+        "n_envs:2",
+        "--env-kwargs",
+        "max_episode_steps:50",
+        "--optimization-log-path",
+        str(trials),
+    ]
+    _run(args, tmp_path)
+    (report,) = (tmp_path / "logs" / "ppo").glob("report_*.csv")
+    rows = list(csv.DictReader(report.open()))
+    assert len(rows) == 1 and rows[0]["state"] == "COMPLETE", rows
+    model = PPO.load(trials / "trial_0" / "best_model.zip", device="cpu")
+    assert isinstance(model.policy.features_extractor, BeliefExtractor)
+
+
 def test_the_config_loads_by_module_name_as_by_path():
     import yaml
 

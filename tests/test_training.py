@@ -239,6 +239,31 @@ def test_eval_callback_validates_on_the_plain_env(small_model, tmp_path):
     assert 0.0 < row["final_map_error"] and row["landmarks_total"] == 10
 
 
+def test_eval_callback_without_a_run_folder_warns_and_writes_nothing(small_model, tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    callback = MapErrorEvalCallback(eval_freq=100, n_episodes=1, verbose=0)
+    with pytest.warns(UserWarning, match="save_path"):
+        callback.init_callback(small_model)  # no monitor log (as in rl-zoo3's Optuna trials)
+    row = callback.evaluate()
+    assert row["best"] == 1 and callback.best_timesteps == 0
+    assert [p.name for p in tmp_path.iterdir()] == ["log"]  # the fixture's logger only
+    with pytest.raises(ValueError, match="save_path"):
+        _ = callback.best_model_path
+
+
+def test_run_folder_is_where_the_monitor_writes(tmp_path):
+    from stable_baselines3.common.env_util import make_vec_env
+    from stable_baselines3.common.vec_env import VecNormalize
+
+    from agents.callbacks import run_folder
+    from agents.shaping import CoverageShaping
+
+    venv = make_vec_env("SeifExplore-v1", n_envs=1, monitor_dir=str(tmp_path / "run"), wrapper_class=CoverageShaping)
+    assert run_folder(VecNormalize(venv)) == tmp_path / "run"
+    venv.close()
+    assert run_folder(make_vec_env("SeifExplore-v1", n_envs=1)) is None
+
+
 @pytest.mark.parametrize(
     ("kwargs", "error"),
     [

@@ -120,5 +120,5 @@ class NativeVecEnv(VecEnv):
         return [False for _ in self._get_indices(indices)]
 
     def get_images(self) -> Sequence[np.ndarray | None]:
-        frame = self.venv.render()
-        return [frame] + [None] * (self.num_envs - 1)
+        frame = self.venv.render()  # sub-env 0's frame (an rgb array)
+        return [np.asarray(frame) if frame is not None else None] + [None] * (self.num_envs - 1)

@@ -27,6 +27,7 @@ autoreset modes; one exception: ``info["pose_nees"]`` on maps of more than
 from __future__ import annotations
 
 import copy
+import functools
 import math
 from typing import Any
 
@@ -79,6 +80,11 @@ def _score_many(true_poses, truth, mean, counters, ids, robot_info, robot_links,
                                       block_position[e], n, np.arange(3))  # fmt: skip
         pose_nees[e] = nees_kernel(error, 0.5 * (cov + cov.T))
         pose_nees_blanket[e] = nees_kernel(error, blanket_covariances[e])
+
+
+def _same(env: gym.Env) -> gym.Env:
+    """``env`` itself (SyncVectorEnv takes env factories; the fallback hands it the envs it already has)."""
+    return env
 
 
 class SeifExploreVectorEnv(VectorEnv):
@@ -137,12 +143,12 @@ class SeifExploreVectorEnv(VectorEnv):
         self.single_action_space = template.action_space
         self.observation_space = batch_space(self.single_observation_space, self.num_envs)
         self.action_space = batch_space(self.single_action_space, self.num_envs)
+        self._sync: SyncVectorEnv | None = None
         if not compiled:
-            limited = [gym.wrappers.TimeLimit(env, self.max_episode_steps) if self.max_episode_steps else env
-                       for env in self.envs]  # fmt: skip
-            self._sync = SyncVectorEnv([lambda env=env: env for env in limited], autoreset_mode=mode)
+            limited: list[gym.Env] = [gym.wrappers.TimeLimit(env, self.max_episode_steps) if self.max_episode_steps
+                                      else env for env in self.envs]  # fmt: skip
+            self._sync = SyncVectorEnv([functools.partial(_same, env) for env in limited], autoreset_mode=mode)
             return
-        self._sync = None
         n = self.num_envs
         self._world = BatchedWorld(n, template.world_config, template.motion, template.sensor)
         self._filters = BatchedSEIF(n, template.world_config.num_landmarks, template.motion, template.sensor,
@@ -150,7 +156,7 @@ class SeifExploreVectorEnv(VectorEnv):
         cells = template.encoder.coverage.shape[0]
         self._coverage = np.zeros((n, cells, cells), dtype=np.uint8)
         self._truth = np.zeros((n, template.world_config.num_landmarks, 2))
-        self._observations = create_empty_array(self.single_observation_space, n)
+        self._observations: dict[str, np.ndarray] = create_empty_array(self.single_observation_space, n)  # type: ignore[assignment]
         self._blanket_covariances = np.zeros((n, 3, 3))
         self._previous_error = np.zeros(n)
         self._elapsed = np.zeros(n, dtype=np.int64)
@@ -187,13 +193,14 @@ class SeifExploreVectorEnv(VectorEnv):
             seeds = list(seed)
         else:
             raise ValueError(f"seed must be an int, None or a list of {self.num_envs} seeds, got {seed!r}")
-        observations, infos = [], {}
+        observations: list[dict[str, np.ndarray]] = []
+        infos: dict[str, Any] = {}
         for e, env_seed in enumerate(seeds):
             observation, info = self.envs[e].reset(seed=env_seed, options=options)
             self._load(e)
             observations.append(observation)
             infos = self._add_info(infos, info, e)
-        self._observations = concatenate(self.single_observation_space, observations, self._observations)
+        self._observations = concatenate(self.single_observation_space, observations, self._observations)  # type: ignore[assignment]
         self._autoreset[:] = False
         return self._copy_observations(), infos
 

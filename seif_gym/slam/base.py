@@ -23,8 +23,9 @@ from seif_gym.slam._validation import (
     as_positive_scalar,
 )
 from seif_gym.slam.models import MotionModel, RangeBearingSensor, wrap_angle
+from seif_gym.slam.noise_models import mahalanobis_squared
 
-__all__ = ["SlamFilter", "UnknownLandmarkError", "DEFAULT_INITIAL_POSE_COV"]
+__all__ = ["SlamFilter", "UnknownLandmarkError", "DEFAULT_INITIAL_POSE_COV", "COMMON_OPTIONS"]
 
 FloatArray = NDArray[np.float64]
 
@@ -33,6 +34,21 @@ FloatArray = NDArray[np.float64]
 #: information matrix finite).
 DEFAULT_INITIAL_POSE_COV: FloatArray = np.diag([1e-6, 1e-6, 1e-6])
 DEFAULT_INITIAL_POSE_COV.setflags(write=False)
+
+
+#: Options every filter takes beside its own ``OPTIONS`` (see :class:`SlamFilter`).
+COMMON_OPTIONS: dict[str, Any] = {"innovation_gate": None}
+
+
+def _check_gate(gate: Any) -> float | None:
+    """``innovation_gate``: None, or a positive threshold on the squared Mahalanobis distance."""
+    if gate is None:
+        return None
+    if isinstance(gate, bool) or not isinstance(gate, (int, float, np.integer, np.floating)):
+        raise TypeError(f"innovation_gate must be a positive number or None, got {type(gate).__name__}")
+    if not float(gate) > 0.0:  # inf allowed: distances reported, nothing rejected
+        raise ValueError(f"innovation_gate must be positive, got {gate!r}")
+    return float(gate)
 
 
 #: Landmark capacity the dense filters (EKF, EIF) allocate at construction; it doubles when exceeded.
@@ -61,14 +77,50 @@ class SlamFilter(ABC):
         ``validate_control``; :class:`~seif_gym.slam.models.VelocityMotionModel`
         or the Victoria Park car model.
     sensor : RangeBearingSensor
-        Provides ``noise_covariance`` (2, 2) and the range-bearing model.
+        Provides ``noise_covariance`` (2, 2) and the range-bearing model. A
+        sensor with ``range_dependent = True`` (such as
+        :class:`~seif_gym.slam.noise_models.RangeDependentSensor`) gives each
+        measurement its own ``Q`` through ``measurement_covariances(ranges)``.
     initial_pose : array_like, shape (3,)
         ``(x, y, theta)`` of the robot at time 0.
     initial_pose_cov : array_like, shape (3, 3), optional
         Its covariance; defaults to :data:`DEFAULT_INITIAL_POSE_COV`.
     **options
-        Filter-specific options, listed in the subclass's ``OPTIONS``.
-        An unknown option raises ``TypeError``.
+        Filter-specific options, listed in the subclass's ``OPTIONS``, and
+        the options every filter takes (:data:`COMMON_OPTIONS`):
+        ``innovation_gate`` (float or None, default None), a threshold on the
+        squared Mahalanobis distance of a measurement's innovation; see
+        Notes. An unknown option raises ``TypeError``.
+
+    Attributes
+    ----------
+    gated_measurements : int
+        Measurements rejected by the innovation gate so far.
+    last_gated_ids : ndarray of int64
+        Ids of the measurements the gate rejected in the last update.
+    last_mahalanobis : ndarray of float64
+        ``d^2`` of each measurement of the last update (in the order given;
+        NaN for a landmark not yet in the map); empty without a gate.
+
+    Notes
+    -----
+    *Innovation gate.* With ``innovation_gate = g``, each measurement ``z_i``
+    of a landmark already in the map is tested before the update against the
+    current belief: with ``nu_i = wrap(z_i - h(mu))``,
+    ``S_i = H_i Sigma_i H_i^T + Q_i`` (``Sigma_i`` the joint covariance of the
+    pose and landmark ``i`` from :meth:`local_joint_covariance`: exact for the
+    EKF and the EIF, the constant-time Markov blanket for the SEIF and the
+    ESEIF) and
+
+    .. math:: d_i^2 = \nu_i^T S_i^{-1} \nu_i,
+
+    a measurement with ``d_i^2 > g`` is rejected (left out of the update and
+    reported in the attributes above). ``d_i^2`` is chi-square with 2 degrees
+    of freedom for a consistent filter: ``g = 13.8`` rejects 0.1 % of good
+    measurements. ``g = inf`` reports the distances and rejects nothing. A
+    landmark seen for the first time cannot be tested. Rejecting is not a
+    failure: the rest of the update goes on; an update that fails leaves the
+    attributes as they were.
     """
 
     #: Option names and defaults of the subclass.
@@ -90,10 +142,11 @@ class SlamFilter(ABC):
         noise = getattr(sensor, "noise_covariance", None)
         if noise is None or np.shape(noise) != (2, 2):
             raise TypeError(f"sensor must be a range-bearing sensor with a (2, 2) noise_covariance, got {type(sensor).__name__}")
-        unknown = sorted(set(options) - set(self.OPTIONS))
+        unknown = sorted(set(options) - set(self.OPTIONS) - set(COMMON_OPTIONS))
         if unknown:
-            valid = ", ".join(self.OPTIONS) or "none"
+            valid = ", ".join([*self.OPTIONS, *COMMON_OPTIONS])
             raise TypeError(f"{type(self).__name__} got unknown option(s) {', '.join(map(repr, unknown))}; valid options: {valid}")
+        gate = _check_gate(options.get("innovation_gate"))
         pose = as_finite_vector(initial_pose, "initial_pose", 3).copy()
         pose[2] = wrap_angle(float(pose[2]))
         cov = DEFAULT_INITIAL_POSE_COV if initial_pose_cov is None else as_covariance(initial_pose_cov, "initial_pose_cov", 3)
@@ -103,6 +156,13 @@ class SlamFilter(ABC):
         self._linearize = getattr(motion, "linearize_trusted", motion.linearize)
         self._measurement_cov: FloatArray = np.array(noise, dtype=np.float64)
         self._measurement_info: FloatArray = np.linalg.inv(self._measurement_cov)
+        self._range_noise = bool(getattr(sensor, "range_dependent", False))
+        if self._range_noise and not callable(getattr(sensor, "measurement_covariances", None)):
+            raise TypeError(f"sensor is range_dependent but has no measurement_covariances(ranges), got {type(sensor).__name__}")
+        self.innovation_gate: float | None = gate
+        self.gated_measurements = 0
+        self.last_gated_ids: NDArray[np.int64] = np.empty(0, dtype=np.int64)
+        self.last_mahalanobis: FloatArray = np.empty(0)
         self._id_to_index: dict[int, int] = {}
         self._ids: NDArray[np.int64] = np.zeros(16, dtype=np.int64)
         self.options: dict[str, Any] = {**self.OPTIONS, **options}
@@ -156,7 +216,73 @@ class SlamFilter(ABC):
         self._predict(control, float(dt))
 
     def update_trusted(self, ranges, bearings, ids) -> None:
-        """:meth:`update` without input checks (float64 ranges > 0, bearings, distinct int64 ids)."""
+        """:meth:`update` without input checks (float64 ranges > 0, bearings, distinct int64 ids).
+
+        Applies the innovation gate (class Notes) when the filter has one.
+        """
+        if self.innovation_gate is None or len(ids) == 0:
+            self._update_known(ranges, bearings, ids)
+            return
+        distances = self.innovation_distances_trusted(ranges, bearings, ids)
+        rejected = distances > self.innovation_gate  # NaN (a new landmark) is never rejected
+        if rejected.any():
+            kept = ~rejected
+            self._update_known(ranges[kept], bearings[kept], ids[kept])
+        else:
+            self._update_known(ranges, bearings, ids)
+        # reported only once the update has gone through
+        self.gated_measurements += int(np.count_nonzero(rejected))
+        self.last_gated_ids = ids[rejected].astype(np.int64)
+        self.last_gated_ids.setflags(write=False)
+        distances.setflags(write=False)
+        self.last_mahalanobis = distances
+
+    def innovation_distances(self, ranges, bearings, ids) -> FloatArray:
+        """Squared Mahalanobis distance ``d^2`` of each measurement's innovation (class Notes), shape (m,).
+
+        NaN for a landmark not in the map. Changes nothing; costs what
+        :meth:`local_joint_covariance` costs (constant time for the SEIF).
+        """
+        ranges, bearings, ids = self.validate_measurements(ranges, bearings, ids)
+        return self.innovation_distances_trusted(ranges, bearings, ids)
+
+    def innovation_distances_trusted(self, ranges, bearings, ids) -> FloatArray:
+        """:meth:`innovation_distances` without input checks."""
+        distances = np.full(len(ids), np.nan)
+        index = np.array([self._id_to_index.get(i, -1) for i in ids.tolist()], dtype=np.int64)
+        mapped = np.flatnonzero(index >= 0)
+        if len(mapped) == 0:
+            return distances
+        indices = index[mapped]
+        joint = self.local_joint_covariance(indices)  # (3 + 2k) over the pose and these landmarks
+        mean = self._mean_vector()
+        pose = mean[:3].copy()
+        landmarks = mean[3 + 2 * indices[:, None] + np.arange(2)]
+        jacobians = self.sensor.jacobian(pose, landmarks)  # (k, 2, 5)
+        innovations = np.column_stack([ranges[mapped], bearings[mapped]]) - self.sensor.predict(pose, landmarks)
+        innovations[:, 1] = wrap_angle(innovations[:, 1])
+        rows = np.empty((len(indices), 5), dtype=np.int64)
+        rows[:, :3] = np.arange(3)
+        rows[:, 3:] = 3 + 2 * np.arange(len(indices))[:, None] + np.arange(2)
+        blocks = joint[rows[:, :, None], rows[:, None, :]]  # (k, 5, 5): pose and landmark i
+        covariances = np.einsum("kac,kcd,kbd->kab", jacobians, blocks, jacobians) + self._noise_covariances(ranges[mapped])
+        distances[mapped] = mahalanobis_squared(innovations, covariances)
+        return distances
+
+    def _noise_covariances(self, ranges: FloatArray) -> FloatArray:
+        """``Q_i`` of each measurement, shape (m, 2, 2)."""
+        if self._range_noise:
+            return np.asarray(self.sensor.measurement_covariances(ranges), dtype=np.float64)
+        return np.broadcast_to(self._measurement_cov, (len(ranges), 2, 2))
+
+    def _noise_informations(self, ranges: FloatArray) -> FloatArray | None:
+        """``Q_i^-1`` of each measurement (m, 2, 2) for a range-dependent sensor; None when all share ``Q``."""
+        if not self._range_noise:
+            return None
+        return np.linalg.inv(self._noise_covariances(ranges))
+
+    def _update_known(self, ranges, bearings, ids) -> None:
+        """The update with the measurements the gate kept: new ids appended, then :meth:`_update`."""
         if len(ids) == 0:
             self._update(ranges, bearings, np.empty(0, np.int64), np.empty(0, bool))
             return

@@ -196,7 +196,11 @@ class EIF(SlamFilter):
         jacobians = self.sensor.jacobian(pose, landmark_means)  # (m, 2, 5), columns (x, y, theta, m_x, m_y)
         innovation = np.column_stack([ranges, bearings]) - predicted
         innovation[:, 1] = wrap_angle(innovation[:, 1])
-        weighted = np.einsum("ab,mbc->mac", self._measurement_info, jacobians)  # Q^-1 H_i
+        noise_infos = self._noise_informations(ranges)  # per-measurement Q_i^-1 of a range-dependent sensor
+        if noise_infos is None:
+            weighted = np.einsum("ab,mbc->mac", self._measurement_info, jacobians)  # Q^-1 H_i
+        else:
+            weighted = np.einsum("mab,mbc->mac", noise_infos, jacobians)
         blocks = np.einsum("mai,maj->mij", jacobians, weighted)  # H_i^T Q^-1 H_i, (m, 5, 5)
         blocks = 0.5 * (blocks + blocks.transpose(0, 2, 1))
         local_means = np.concatenate([np.broadcast_to(pose, (count, 3)), landmark_means], axis=1)

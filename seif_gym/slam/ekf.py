@@ -133,6 +133,8 @@ class EKF(SlamFilter):
         cov = self._state_cov[:old_dim, :old_dim]
         pose = mean[:3].copy()
         measurement_cov = self._measurement_cov
+        # per-measurement Q_i of a range-dependent sensor (None: every measurement has Q)
+        noise_covs = self._noise_covariances(ranges) if self._range_noise else None
         new_count = int(np.count_nonzero(is_new))
         new_dim = old_dim + 2 * new_count
 
@@ -144,7 +146,8 @@ class EKF(SlamFilter):
             wrt_pose_stacked = wrt_pose.reshape(2 * new_count, 3)
             new_cross = wrt_pose_stacked @ cov[:3, :]  # Sigma_{new, old} = G_x Sigma_{x, old}
             new_block = wrt_pose_stacked @ new_cross[:, :3].T  # G_x Sigma_xx G_x^T (all pairs)
-            own_noise = wrt_measurement @ measurement_cov @ wrt_measurement.transpose(0, 2, 1)
+            own_cov = measurement_cov if noise_covs is None else noise_covs[is_new]
+            own_noise = wrt_measurement @ own_cov @ wrt_measurement.transpose(0, 2, 1)
             for k in range(new_count):
                 new_block[2 * k : 2 * k + 2, 2 * k : 2 * k + 2] += own_noise[k]
             new_block = symmetrized(new_block)
@@ -176,8 +179,9 @@ class EKF(SlamFilter):
             cov_jt_old = times_jacobian_transpose(cov)  # (old_dim, 2m)
             cov_jt_new = times_jacobian_transpose(new_cross)  # (2 new, 2m)
             innovation_cov = times_jacobian_transpose(cov_jt_old.T)  # H Sigma H^T, (2m, 2m)
+            old_covs = None if noise_covs is None else noise_covs[old]
             for k in range(old_count):
-                innovation_cov[2 * k : 2 * k + 2, 2 * k : 2 * k + 2] += measurement_cov
+                innovation_cov[2 * k : 2 * k + 2, 2 * k : 2 * k + 2] += measurement_cov if old_covs is None else old_covs[k]
             factor = scipy.linalg.cho_factor(symmetrized(innovation_cov), lower=True, check_finite=False)
             cov_jt = np.vstack([cov_jt_old, cov_jt_new])  # Sigma H^T over the augmented state
             gain_transpose = scipy.linalg.cho_solve(factor, cov_jt.T, check_finite=False)  # K^T = S^-1 H Sigma

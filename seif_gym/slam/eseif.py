@@ -454,14 +454,14 @@ class ESEIF(SEIF):
         self._plan = _ORDINARY
 
     # -- one update ----------------------------------------------------------------
-    def update_trusted(self, ranges, bearings, ids) -> None:
-        """:meth:`update` without input checks; plans the update (and what to leave out) first."""
+    def _update_known(self, ranges, bearings, ids) -> None:
+        """The update of the measurements the gate kept; plans it (and what to leave out) first."""
         plan, kept = self._plan_update(ranges, bearings, ids)
         if kept is not None:
             ranges, bearings, ids = ranges[kept], bearings[kept], ids[kept]
         self._plan = plan
         try:
-            super().update_trusted(ranges, bearings, ids)
+            super()._update_known(ranges, bearings, ids)
         finally:
             self._plan = _ORDINARY
         if kept is not None:

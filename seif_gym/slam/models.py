@@ -317,11 +317,20 @@ class RangeBearingSensor:
         self.noise_covariance: FloatArray = np.diag([self.sigma_range**2, self.sigma_bearing**2])
         self.noise_covariance.setflags(write=False)
 
+    #: One noise for every measurement (``noise_covariance``); a sensor whose noise depends on the
+    #: measurement sets this True and the filters call :meth:`measurement_covariances` instead.
+    range_dependent = False
+
     def __repr__(self) -> str:
         return (
             f"RangeBearingSensor(sigma_range={self.sigma_range}, sigma_bearing={self.sigma_bearing}, "
             f"max_range={self.max_range}, fov={self.fov})"
         )
+
+    def measurement_covariances(self, ranges) -> FloatArray:
+        """Noise covariance ``Q`` of each measurement, shape (m, 2, 2): ``noise_covariance`` for all here."""
+        ranges = as_finite_array(np.atleast_1d(ranges), "ranges", (None,))
+        return np.broadcast_to(self.noise_covariance, (len(ranges), 2, 2)).copy()
 
     @staticmethod
     def _landmarks(landmarks, name: str = "landmarks") -> FloatArray:

@@ -717,16 +717,23 @@ class SEIF(SlamFilter):
         if len(indices) == 0:
             return
         store = self._store
-        measurement_info = self._measurement_info if weight == 1.0 else weight * self._measurement_info
-        if self._compiled:
-            _kernels.measurement_update(
-                store.robot_info, store.robot_links, store.landmark_info,
-                store.information_vector, store.mean, indices, ranges, bearings, measurement_info,
-            )  # fmt: skip
-        else:
-            omega, xi, mu = store.gather(indices)
-            omega, xi = measurement_update(omega, xi, mu, ranges, bearings, measurement_info)
-            store.scatter(indices, omega, xi)
+        noise_infos = self._noise_informations(ranges)
+        if noise_infos is None:
+            measurement_info = self._measurement_info if weight == 1.0 else weight * self._measurement_info
+            groups = [(indices, ranges, bearings, measurement_info)]
+        else:  # a range-dependent sensor: one Q_i^-1 per measurement (all linearised at the same mean)
+            groups = [(indices[k : k + 1], ranges[k : k + 1], bearings[k : k + 1], weight * noise_infos[k])
+                      for k in range(len(indices))]  # fmt: skip
+        for group, group_ranges, group_bearings, measurement_info in groups:
+            if self._compiled:
+                _kernels.measurement_update(
+                    store.robot_info, store.robot_links, store.landmark_info,
+                    store.information_vector, store.mean, group, group_ranges, group_bearings, measurement_info,
+                )  # fmt: skip
+            else:
+                omega, xi, mu = store.gather(group)
+                omega, xi = measurement_update(omega, xi, mu, group_ranges, group_bearings, measurement_info)
+                store.scatter(group, omega, xi)
         self._last_observed[indices] = self._update_count
         newly_active = indices[~self._is_active[indices]]
         if len(newly_active):

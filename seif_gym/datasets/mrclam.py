@@ -55,6 +55,14 @@ Pitfalls (from the data README) and what the loader does about each:
 Every stream is sorted by time (a stable sort; the files of Dataset 6 are
 already sorted). All arrays are read-only.
 
+Command line::
+
+    python -m seif_gym.datasets.mrclam calibrate --data DIR [--robots 1 2 ...] [--out FILE]
+
+estimates the command correction, the per-second motion noise and the sensor
+noise from the ground truth (:mod:`seif_gym.datasets.mrclam_calibration`) and
+writes them to a JSON file (:class:`~seif_gym.datasets.mrclam_calibration.Calibration`).
+
 Example::
 
     from seif_gym.datasets import mrclam
@@ -69,7 +77,9 @@ Example::
 
 from __future__ import annotations
 
+import sys
 import warnings
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -430,3 +440,22 @@ def load_all(path) -> dict[int, MrclamLog]:
     folder = _resolve_folder(path)
     barcodes, landmarks = _read_shared(folder)
     return {robot: _load_robot(folder, robot, barcodes, landmarks) for robot in ROBOTS}
+
+
+# ---------------------------------------------------------------------------
+# Command line
+# ---------------------------------------------------------------------------
+def main(argv: Sequence[str] | None = None) -> int:
+    """``python -m seif_gym.datasets.mrclam calibrate ...``; returns the exit status."""
+    args = list(sys.argv[1:] if argv is None else argv)
+    if args and args[0] == "calibrate":
+        from seif_gym.datasets.mrclam_calibration import main as calibrate_main
+
+        return calibrate_main(args[1:])
+    print("usage: python -m seif_gym.datasets.mrclam calibrate --data DIR [--robots N ...] [--out FILE]\n"
+          "       (python -m seif_gym.datasets.mrclam calibrate --help for the options)", file=sys.stderr)  # fmt: skip
+    return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())

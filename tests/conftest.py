@@ -12,6 +12,9 @@ for _name in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_name, "1")
 
 
+import gymnasium  # noqa: E402
+import gymnasium.envs.registration  # noqa: E402
+import gymnasium.wrappers.common  # noqa: E402
 import numpy as np  # noqa: E402  (after the BLAS settings above)
 import pytest  # noqa: E402
 
@@ -28,3 +31,16 @@ def ring_loop_run():
     landmarks = ring_landmarks(40, 6.0, 12.0, rng)
     run = simulate_run(motion, sensor, landmarks, loop_controls(300, 0.1, radius=9.0), 0.1, loop_start_pose(9.0), rng)
     return motion, sensor, run
+
+
+#: gymnasium's own TimeLimit, captured before any test module is collected: importing rl_zoo3 (which
+#: agents.train does) replaces it process-wide by a subclass that adds info["TimeLimit.truncated"]
+_TIME_LIMIT = gymnasium.wrappers.common.TimeLimit
+
+
+@pytest.fixture(autouse=True)
+def gymnasium_time_limit():
+    """Every test starts with gymnasium's own TimeLimit, whatever an earlier test imported."""
+    for module in (gymnasium.wrappers, gymnasium.wrappers.common, gymnasium.envs.registration):
+        module.TimeLimit = _TIME_LIMIT
+    yield

@@ -34,6 +34,13 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 import numpy as np  # noqa: E402
 
 
+def _env_steps(episodes: object) -> int:
+    """Env steps in a (nested) list of RLlib episodes."""
+    if isinstance(episodes, (list, tuple)):
+        return sum(_env_steps(item) for item in episodes)
+    return int(episodes.env_steps())
+
+
 def _parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--env", default="SeifExplore-v1")
@@ -86,7 +93,7 @@ def main(argv: list[str] | None = None) -> int:
                         tick = time.perf_counter()
                         episodes = sample()
                         seconds = time.perf_counter() - tick
-                        rates.append(sum(len(e) for e in episodes) / seconds)
+                        rates.append(_env_steps(episodes) / seconds)
                     print(f"| {count} | {mode} | {np.mean(rates):.0f} | {min(rates):.0f} | {max(rates):.0f} |",
                           flush=True)
                 finally:

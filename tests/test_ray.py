@@ -226,6 +226,10 @@ def test_train_rejects_bad_arguments_before_starting_ray(tmp_path):
         train("SeifExplore-v0", timesteps=0, out=tmp_path)
     with pytest.raises(TypeError, match="out"):
         train("SeifExplore-v0", timesteps=10, out=3)
+    with pytest.raises(ValueError, match="torch_threads"):
+        train("SeifExplore-v0", timesteps=10, out=tmp_path, torch_threads=0)
+    with pytest.raises(ValueError, match="num_env_runners"):
+        train("SeifExplore-v0", timesteps=10, out=tmp_path, num_env_runners=-2)
     assert not list(tmp_path.iterdir())
 
 

@@ -39,6 +39,7 @@ it with the baselines.
 
 from __future__ import annotations
 
+import itertools
 import math
 import os
 from collections.abc import Mapping, Sequence
@@ -56,7 +57,7 @@ from torch import nn
 
 from agents.baselines import Agent
 
-__all__ = ["BeliefRLModule", "RLlibAgent", "MAP_KEY", "DEFAULT_MODEL_CONFIG", "module_checkpoint", "AGENT_PREFIX"]
+__all__ = ["AGENT_PREFIX", "DEFAULT_MODEL_CONFIG", "MAP_KEY", "BeliefRLModule", "RLlibAgent", "module_checkpoint"]
 
 #: Key of the image entry of the observation.
 MAP_KEY = "belief_map"
@@ -77,7 +78,7 @@ _MODULE_SUBDIR = Path("learner_group") / "learner" / "rl_module" / "default_poli
 def _mlp(sizes: Sequence[int], activation: type[nn.Module]) -> nn.Sequential:
     """Dense layers ``sizes[0] -> sizes[1] -> ...``, each followed by ``activation``."""
     layers: list[nn.Module] = []
-    for fan_in, fan_out in zip(sizes[:-1], sizes[1:]):
+    for fan_in, fan_out in itertools.pairwise(sizes):
         layers += [nn.Linear(fan_in, fan_out), activation()]
     return nn.Sequential(*layers)
 
@@ -125,7 +126,7 @@ class BeliefRLModule(TorchRLModule, ValueFunctionAPI):
             raise TypeError(f"action_space must be a 1-D Box, got {self.action_space}")
 
         # other keys are RLlib's own (PPO adds ``vf_share_layers``): not read here
-        given = dict(self.model_config or {})
+        given: Mapping[str, Any] = self.model_config if isinstance(self.model_config, Mapping) else {}
         config = {key: given.get(key, default) for key, default in DEFAULT_MODEL_CONFIG.items()}
         map_features = config["map_features"]
         if isinstance(map_features, bool) or not isinstance(map_features, (int, np.integer)):
@@ -136,7 +137,11 @@ class BeliefRLModule(TorchRLModule, ValueFunctionAPI):
         pi_hiddens = _check_widths("pi_hiddens", config["pi_hiddens"])
         vf_hiddens = _check_widths("vf_hiddens", config["vf_hiddens"])
         log_std_init = config["log_std_init"]
-        if isinstance(log_std_init, bool) or not isinstance(log_std_init, (int, float)) or not math.isfinite(log_std_init):
+        if (
+            isinstance(log_std_init, bool)
+            or not isinstance(log_std_init, (int, float))
+            or not math.isfinite(log_std_init)
+        ):
             raise TypeError(f"model_config['log_std_init'] must be a finite number, got {log_std_init!r}")
 
         channels, height, width = image.shape
@@ -152,7 +157,7 @@ class BeliefRLModule(TorchRLModule, ValueFunctionAPI):
         with torch.no_grad():
             flat = int(self.cnn(torch.zeros(1, channels, height, width)).shape[1])
         self.map_head = nn.Sequential(nn.Linear(flat, int(map_features)), nn.ReLU())
-        vector_size = sum(int(np.prod(space[key].shape)) for key in self.vector_keys)
+        vector_size = sum(gym.spaces.flatdim(space[key]) for key in self.vector_keys)
         self.vector_mlp = _mlp([vector_size, *vector_hiddens], nn.ReLU)
         features = int(map_features) + (vector_hiddens[-1] if vector_hiddens else vector_size)
         actions = int(self.action_space.shape[0])

@@ -58,7 +58,16 @@ from typing import Any
 
 import gymnasium as gym
 
-__all__ = ["PROGRESS_COLUMNS", "RLLIB_ENV_NAME", "TrainResult", "make_env", "build_config", "train", "stop_algorithm", "main"]
+__all__ = [
+    "PROGRESS_COLUMNS",
+    "RLLIB_ENV_NAME",
+    "TrainResult",
+    "build_config",
+    "main",
+    "make_env",
+    "stop_algorithm",
+    "train",
+]
 
 #: Columns of ``progress.csv``.
 PROGRESS_COLUMNS: tuple[str, ...] = (
@@ -105,7 +114,7 @@ def make_env(config: Mapping[str, Any]) -> gym.Env | gym.vector.VectorEnv:
         raise TypeError(f"config must be a mapping, got {type(config).__name__}")
     env_id = config.get("env_id")
     if not isinstance(env_id, str):
-        raise ValueError(f"config['env_id'] must be an env id, got {env_id!r}")
+        raise TypeError(f"config['env_id'] must be an env id (a str), got {env_id!r}")
     env_kwargs = dict(config.get("env_kwargs") or {})
     num_envs = config.get("num_envs")
     if num_envs is None:
@@ -168,11 +177,11 @@ def build_config(
     ValueError, TypeError
         An argument out of range or of the wrong type (named in the message).
     """
-    import seif_gym  # noqa: F401
     from ray.rllib.algorithms.ppo import PPOConfig
     from ray.rllib.core.rl_module.rl_module import RLModuleSpec
     from ray.tune.registry import register_env
 
+    import seif_gym  # noqa: F401
     from agents.rllib_agent import BeliefRLModule
 
     if not isinstance(env_id, str) or env_id not in gym.registry:
@@ -195,9 +204,9 @@ def build_config(
             raise ValueError(f"{name} must be >= {low}, got {value}")
     if minibatch_size > train_batch_size:
         raise ValueError(f"minibatch_size ({minibatch_size}) must not exceed train_batch_size ({train_batch_size})")
-    for name, value in (("lr", lr), ("gamma", gamma), ("lambda_", lambda_), ("entropy_coeff", entropy_coeff)):
-        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-            raise TypeError(f"{name} must be a finite number, got {value!r}")
+    for name, number in (("lr", lr), ("gamma", gamma), ("lambda_", lambda_), ("entropy_coeff", entropy_coeff)):
+        if isinstance(number, bool) or not isinstance(number, (int, float)) or not math.isfinite(number):
+            raise TypeError(f"{name} must be a finite number, got {number!r}")
     if lr <= 0:
         raise ValueError(f"lr must be > 0, got {lr}")
     if not 0 < gamma <= 1 or not 0 <= lambda_ <= 1:
@@ -279,7 +288,9 @@ def _get(result: Mapping[str, Any], *keys: str, default: float = math.nan) -> An
     return value
 
 
-def _row(iteration: int, result: Mapping[str, Any], previous_steps: int, iteration_s: float, started: float) -> dict[str, Any]:
+def _row(
+    iteration: int, result: Mapping[str, Any], previous_steps: int, iteration_s: float, started: float
+) -> dict[str, Any]:
     """One ``progress.csv`` row from an RLlib result dict (episode statistics are RLlib's running means)."""
     steps = int(_get(result, "num_env_steps_sampled_lifetime", default=0) or 0)
     return {
@@ -298,7 +309,9 @@ def _row(iteration: int, result: Mapping[str, Any], previous_steps: int, iterati
 
 def _fmt(value: float, width: int, digits: int) -> str:
     """``value`` right-aligned, ``-`` where RLlib had nothing (no episode ended in the iteration)."""
-    return f"{value:{width}.{digits}f}" if isinstance(value, (int, float)) and math.isfinite(value) else "-".rjust(width)
+    return (
+        f"{value:{width}.{digits}f}" if isinstance(value, (int, float)) and math.isfinite(value) else "-".rjust(width)
+    )
 
 
 def _jsonable(value: Any) -> Any:
@@ -494,8 +507,12 @@ def _parser() -> argparse.ArgumentParser:
     parser.add_argument("--out", required=True, help="output directory (checkpoint, progress.csv, config.json)")
     parser.add_argument("--num-env-runners", type=int, default=1, help="remote env runners (0: sample in the driver)")
     parser.add_argument("--num-envs-per-env-runner", type=int, default=8, help="envs per runner (one vector env)")
-    parser.add_argument("--vectorize", choices=("native", "sync"), default="native",
-                        help="native: the id's compiled vector env where it has one; sync: SyncVectorEnv")
+    parser.add_argument(
+        "--vectorize",
+        choices=("native", "sync"),
+        default="native",
+        help="native: the id's compiled vector env where it has one; sync: SyncVectorEnv",
+    )
     parser.add_argument("--address", default=None, help="join a Ray cluster: 'auto' or HOST:PORT (default: local)")
     parser.add_argument("--num-cpus", type=int, default=None, help="CPUs of the local Ray instance (default: all)")
     parser.add_argument("--train-batch-size", type=int, default=4096, help="env steps per iteration")
@@ -506,8 +523,12 @@ def _parser() -> argparse.ArgumentParser:
     parser.add_argument("--entropy-coeff", type=float, default=0.001)
     parser.add_argument("--model-config", default="{}", help="JSON object: BeliefRLModule's model_config")
     parser.add_argument("--checkpoint-every", type=int, default=10, help="iterations between checkpoints")
-    parser.add_argument("--torch-threads", type=int, default=1,
-                        help="torch threads of the learner in this process (default 1; 0: torch's default)")
+    parser.add_argument(
+        "--torch-threads",
+        type=int,
+        default=1,
+        help="torch threads of the learner in this process (default 1; 0: torch's default)",
+    )
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--quiet", action="store_true", help="print nothing")
     return parser
@@ -550,8 +571,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         seed=args.seed,
     )
     if not args.quiet:
-        print(f"{result.iterations} iterations, {result.env_steps} env steps; evaluate with "
-              f"python -m agents.evaluate --agents rllib:{result.checkpoint}")
+        print(
+            f"{result.iterations} iterations, {result.env_steps} env steps; evaluate with "
+            f"python -m agents.evaluate --agents rllib:{result.checkpoint}"
+        )
     return 0
 
 

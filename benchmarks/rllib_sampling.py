@@ -26,15 +26,25 @@ import os
 import sys
 import time
 from pathlib import Path
+from typing import Any
 
 os.environ.setdefault("RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER", "0")  # before ray is imported: loopback only
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-import numpy as np  # noqa: E402
+import numpy as np
 
 
-def _env_steps(episodes: object) -> int:
+def _sample(algo: Any, steps: int) -> Any:
+    """One round of parallel sampling from all env runners, as a PPO iteration does it."""
+    from ray.rllib.execution.rollout_ops import synchronous_parallel_sample
+
+    return synchronous_parallel_sample(
+        worker_set=algo.env_runner_group, max_env_steps=steps, concat=False, _uses_new_env_runners=True
+    )
+
+
+def _env_steps(episodes: Any) -> int:
     """Env steps in a (nested) list of RLlib episodes."""
     if isinstance(episodes, (list, tuple)):
         return sum(_env_steps(item) for item in episodes)
@@ -63,39 +73,43 @@ def main(argv: list[str] | None = None) -> int:
         raise SystemExit("--runners must be positive ints and --vectorize native and/or sync")
 
     import ray
-    from ray.rllib.execution.rollout_ops import synchronous_parallel_sample
 
     from agents.rllib_train import build_config, stop_algorithm
 
-    kwargs = {"include_dashboard": False, "log_to_driver": False, "logging_level": "ERROR"}
+    kwargs: dict[str, Any] = {"include_dashboard": False, "log_to_driver": False, "logging_level": "ERROR"}
     if args.address is None:
         ray.init(address="local", num_cpus=args.num_cpus, _node_ip_address="127.0.0.1", **kwargs)
     else:
         ray.init(address=args.address, **kwargs)
-    print(f"{args.env}, {args.envs_per_runner} envs per runner, {args.steps} steps per round, "
-          f"{args.repeats} rounds, {int(ray.cluster_resources().get('CPU', 0))} CPUs")
+    print(
+        f"{args.env}, {args.envs_per_runner} envs per runner, {args.steps} steps per round, "
+        f"{args.repeats} rounds, {int(ray.cluster_resources().get('CPU', 0))} CPUs"
+    )
     print("| env runners | vector env | env steps / s (mean) | min | max |")
     print("|---:|---|---:|---:|---:|")
     try:
         for mode in modes:
             for count in runners:
-                config = build_config(args.env, num_env_runners=count, num_envs_per_env_runner=args.envs_per_runner,
-                                      vectorize=mode, train_batch_size=args.steps, minibatch_size=args.steps)
+                config = build_config(
+                    args.env,
+                    num_env_runners=count,
+                    num_envs_per_env_runner=args.envs_per_runner,
+                    vectorize=mode,
+                    train_batch_size=args.steps,
+                    minibatch_size=args.steps,
+                )
                 algo = config.build_algo()
                 try:
-                    sample = lambda: synchronous_parallel_sample(  # noqa: E731
-                        worker_set=algo.env_runner_group, max_env_steps=args.steps, concat=False,
-                        _uses_new_env_runners=True,
-                    )
-                    sample()  # warm-up
+                    _sample(algo, args.steps)  # warm-up
                     rates = []
                     for _ in range(args.repeats):
                         tick = time.perf_counter()
-                        episodes = sample()
+                        episodes = _sample(algo, args.steps)
                         seconds = time.perf_counter() - tick
                         rates.append(_env_steps(episodes) / seconds)
-                    print(f"| {count} | {mode} | {np.mean(rates):.0f} | {min(rates):.0f} | {max(rates):.0f} |",
-                          flush=True)
+                    print(
+                        f"| {count} | {mode} | {np.mean(rates):.0f} | {min(rates):.0f} | {max(rates):.0f} |", flush=True
+                    )
                 finally:
                     stop_algorithm(algo)
     finally:

@@ -20,20 +20,20 @@ from pathlib import Path
 os.environ.setdefault("RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER", "0")
 os.environ.setdefault("RAY_AUTH_MODE", "disabled")
 
-import gymnasium as gym  # noqa: E402
-import numpy as np  # noqa: E402
-import pytest  # noqa: E402
+import gymnasium as gym
+import numpy as np
+import pytest
 
 ray = pytest.importorskip("ray", reason="the optional 'ray' extra is not installed")
 pytest.importorskip("ray.rllib", reason="the optional 'ray' extra is not installed")
 
-import torch  # noqa: E402
-from ray.cluster_utils import Cluster  # noqa: E402
+import torch
+from ray.cluster_utils import Cluster
 
-import seif_gym  # noqa: E402, F401
-from agents import make_agent  # noqa: E402
-from agents.rllib_agent import BeliefRLModule, RLlibAgent, module_checkpoint  # noqa: E402
-from agents.rllib_train import PROGRESS_COLUMNS, build_config, make_env, stop_algorithm, train  # noqa: E402
+import seif_gym  # noqa: F401
+from agents import make_agent
+from agents.rllib_agent import BeliefRLModule, RLlibAgent, module_checkpoint
+from agents.rllib_train import PROGRESS_COLUMNS, build_config, make_env, stop_algorithm, train
 
 LOOPBACK = "127.0.0.1"
 #: One iteration's worth of steps: 2 runners x 2 envs x 16 steps.
@@ -198,7 +198,7 @@ def test_make_env_builds_single_native_and_sync_envs():
         assert obs["belief_map"].shape[0] == 2
     finally:
         single.close(), native.close(), sync.close()
-    with pytest.raises(ValueError, match="env_id"):
+    with pytest.raises(TypeError, match="env_id"):
         make_env({"env_kwargs": {}})
     with pytest.raises(ValueError, match="vectorize"):
         make_env({"env_id": "SeifExplore-v1", "num_envs": 2, "vectorize": "async"})

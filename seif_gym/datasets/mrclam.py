@@ -58,10 +58,14 @@ already sorted). All arrays are read-only.
 Command line::
 
     python -m seif_gym.datasets.mrclam calibrate --data DIR [--robots 1 2 ...] [--out FILE]
+    python -m seif_gym.datasets.mrclam --data DIR --robot N|all --filter ekf|eif|seif|eseif --out OUT.npz \
+        [--association known|ml] [--calibration FILE]
 
-estimates the command correction, the per-second motion noise and the sensor
-noise from the ground truth (:mod:`seif_gym.datasets.mrclam_calibration`) and
-writes them to a JSON file (:class:`~seif_gym.datasets.mrclam_calibration.Calibration`).
+The first estimates the command correction, the per-second motion noise and
+the sensor noise from the ground truth (:mod:`seif_gym.datasets.mrclam_calibration`)
+and writes them to a JSON file (:class:`~seif_gym.datasets.mrclam_calibration.Calibration`);
+the second runs a filter over the logs and scores it against Vicon and the
+survey (:mod:`seif_gym.datasets.mrclam_runner`).
 
 Example::
 
@@ -446,15 +450,19 @@ def load_all(path) -> dict[int, MrclamLog]:
 # Command line
 # ---------------------------------------------------------------------------
 def main(argv: Sequence[str] | None = None) -> int:
-    """``python -m seif_gym.datasets.mrclam calibrate ...``; returns the exit status."""
+    """``python -m seif_gym.datasets.mrclam [calibrate] ...``; returns the exit status.
+
+    ``calibrate ...`` runs :func:`seif_gym.datasets.mrclam_calibration.main`;
+    anything else the runner, :func:`seif_gym.datasets.mrclam_runner.main`.
+    """
     args = list(sys.argv[1:] if argv is None else argv)
     if args and args[0] == "calibrate":
         from seif_gym.datasets.mrclam_calibration import main as calibrate_main
 
         return calibrate_main(args[1:])
-    print("usage: python -m seif_gym.datasets.mrclam calibrate --data DIR [--robots N ...] [--out FILE]\n"
-          "       (python -m seif_gym.datasets.mrclam calibrate --help for the options)", file=sys.stderr)  # fmt: skip
-    return 2
+    from seif_gym.datasets.mrclam_runner import main as run_main
+
+    return run_main(args)
 
 
 if __name__ == "__main__":

@@ -151,7 +151,7 @@ class Calibration:
     forward: tuple[float, float, float] = (0.0, 0.0, 0.0)
     turn: tuple[float, float, float] = (0.0, 0.0, 0.0)
     lateral: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    horizon: float = 5.0
+    horizon: float = 20.0
     range_slope: float = 0.05
     range_bounds: tuple[float, float] = (0.02, 0.5)
     sigma_bearing: float = 0.01
@@ -484,7 +484,7 @@ def _error_correlations(times, subjects, errors, scale, lags=CORRELATION_LAGS, t
 def calibrate(
     logs,
     *,
-    horizon: float = 5.0,
+    horizon: float = 20.0,
     fit_offsets: bool = False,
     latency_grid: Sequence[float] | None = None,
     sensor_latency_grid: Sequence[float] | None = None,
@@ -497,8 +497,10 @@ def calibrate(
     logs : mapping of int to MrclamLog, or sequence of MrclamLog
         One log per robot (:func:`seif_gym.datasets.mrclam.load`), all of one
         dataset (one survey).
-    horizon : float, default 5
-        Window length (s) the motion-noise densities are fitted at.
+    horizon : float, default 20
+        Window length (s) the motion-noise densities are fitted at: the
+        MRCLAM robots go 30-80 s between landmark sightings, where the
+        variance of their dead reckoning grows faster than linearly.
     fit_offsets : bool, default False
         Fit the offsets ``b_v``, ``b_w`` of the correction too (they move a
         robot that is commanded to stand still, so they are off by default).
@@ -876,7 +878,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--data", required=True, help="dataset folder, e.g. ../shared/data/mrclam/MRCLAM_Dataset6")
     parser.add_argument("--robots", type=int, nargs="+", default=list(mrclam.ROBOTS), help="robots (default: all)")
     parser.add_argument("--out", default="mrclam_calibration.json", help="output JSON file")
-    parser.add_argument("--horizon", type=float, default=5.0, help="window (s) the motion noise is fitted at")
+    parser.add_argument("--horizon", type=float, default=20.0, help="window (s) the motion noise is fitted at")
     parser.add_argument("--fit-offsets", action="store_true", help="also fit the command offsets b_v, b_w")
     parser.add_argument("--quiet", action="store_true", help="print nothing but errors")
     return parser

@@ -6,8 +6,9 @@ Usage::
 
 Runs ``python -m agents.train`` with the shipped hyperparameters
 (``agents/hyperparams/ppo.yml``: 512 steps per env per rollout, 5 epochs of
-minibatches of 1024) once per ``--vec-env``, evaluation and checkpoints out of
-the way, and prints the steps per second of ``model.learn`` (what
+minibatches of 1024) once per ``--vec-env``, without the entry's shaping
+wrapper (a wrapper of single envs would turn ``native`` into ``dummy``),
+validation and checkpoints off, and prints the steps per second of ``model.learn`` (what
 ``train_time.json`` records). Each run is a fresh process, so the numbers
 include neither the other runs' warm caches nor their threads.
 """
@@ -28,9 +29,11 @@ VEC_ENVS = ("native", "dummy", "subproc")
 def run(env_id: str, vec_env: str, timesteps: int, n_envs: int, folder: Path) -> float:
     """Steps per second of one training run."""
     out = folder / vec_env
+    # the shipped entry's shaping wrapper would turn native into dummy, and validation is not training:
+    # both off, so that the three runs differ only in the vector env
     command = [sys.executable, "-m", "agents.train", "--algo", "ppo", "--env", env_id, "--timesteps", str(timesteps),
-               "--n-envs", str(n_envs), "--vec-env", vec_env, "--out", str(out), "--no-progress-bar",
-               "--eval-freq", str(10 * timesteps), "--checkpoint-freq", str(10 * timesteps)]  # fmt: skip
+               "--n-envs", str(n_envs), "--vec-env", vec_env, "--out", str(out), "--quiet",
+               "--hyperparams", "env_wrapper=null", "--eval-freq", "-1", "--checkpoint-freq", "-1"]  # fmt: skip
     subprocess.run(command, check=True, capture_output=True, text=True, env={**os.environ, "OPENBLAS_NUM_THREADS": "1"})
     record = json.loads((out / "train_time.json").read_text())
     return record["timesteps"] / record["seconds"]

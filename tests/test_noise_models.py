@@ -25,8 +25,15 @@ import math
 import numpy as np
 import pytest
 
-from seif_gym.slam import EIF, EKF, ESEIF, SEIF, RangeBearingSensor, VelocityMotionModel
-from seif_gym.slam import _kernels
+from seif_gym.slam import (
+    EIF,
+    EKF,
+    ESEIF,
+    SEIF,
+    RangeBearingSensor,
+    VelocityMotionModel,
+    _kernels,
+)
 from seif_gym.slam.models import wrap_angle
 from seif_gym.slam.noise_models import (
     CommandCorrection,
@@ -35,7 +42,12 @@ from seif_gym.slam.noise_models import (
     RangeDependentSensor,
     mahalanobis_squared,
 )
-from seif_gym.slam.simulation import loop_controls, loop_start_pose, ring_landmarks, simulate_run
+from seif_gym.slam.simulation import (
+    loop_controls,
+    loop_start_pose,
+    ring_landmarks,
+    simulate_run,
+)
 
 EPS = np.finfo(np.float64).eps
 H = 1e-6
@@ -353,7 +365,7 @@ class TestRangeDependentSensor:
         std = draws.std(axis=0)
         # 4000 draws: a standard deviation's standard error is ~1.1 %
         np.testing.assert_allclose(std, np.clip(0.05 * np.array([1.0, 3.0, 7.0]), 0.06, 0.3), rtol=0.06)
-        ranges, bearings, ids = ranged.sample(pose, landmarks, np.random.default_rng(1), ids=np.array([7, 8, 9]))
+        _, _, ids = ranged.sample(pose, landmarks, np.random.default_rng(1), ids=np.array([7, 8, 9]))
         np.testing.assert_array_equal(ids, [7, 8, 9])
 
     @pytest.mark.parametrize(

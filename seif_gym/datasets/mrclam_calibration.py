@@ -39,6 +39,7 @@ the time between a filter's landmark sightings.
 from __future__ import annotations
 
 import argparse
+import itertools
 import json
 import math
 import sys
@@ -303,8 +304,8 @@ def _track(log: mrclam.MrclamLog, max_gap: float = 0.25) -> _Track:
 
 def _windows(track: _Track, length: float, stride: float | None = None) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
     """Start and end grid indices of windows of ``length`` s (every ``stride`` s) with valid steps only."""
-    n = max(int(round(length / STEP)), 1)
-    every = max(int(round((stride if stride is not None else length) / STEP)), 1)
+    n = max(round(length / STEP), 1)
+    every = max(round((stride if stride is not None else length) / STEP), 1)
     starts = np.arange(0, len(track.time) - 1 - n, every)
     bad = np.concatenate([[0], np.cumsum(~track.valid)])
     ok = bad[starts + n] == bad[starts]
@@ -336,7 +337,8 @@ def _correction_design(track: _Track, latency: float, offset: float, starts, end
 
 def _fit_correction(tracks, latency, offsets, windows, fit_offsets) -> tuple[CommandCorrection, float, float]:
     """Huber regressions of distance and turn per window; returns the correction and the two residual scales."""
-    parts = [_correction_design(t, latency, offsets[t.robot], *windows[t.robot], fit_offsets) for t in tracks]
+    parts = [_correction_design(t, latency, offsets[t.robot], windows[t.robot][0], windows[t.robot][1], fit_offsets)
+             for t in tracks]  # fmt: skip
     distance = np.concatenate([p[0] for p in parts])
     turn = np.concatenate([p[1] for p in parts])
     speed_design = np.vstack([p[2] for p in parts])
@@ -426,7 +428,7 @@ def _range_noise(errors: FloatArray, ranges: FloatArray) -> tuple[float, tuple[f
     """
     edges = np.unique(np.quantile(ranges, np.linspace(0.0, 1.0, 9)))
     centres, scales = [], []
-    for low, high in zip(edges[:-1], edges[1:]):
+    for low, high in itertools.pairwise(edges):
         inside = (ranges >= low) & (ranges <= high)
         if np.count_nonzero(inside) >= 20:
             centres.append(float(np.median(ranges[inside])))
@@ -450,10 +452,8 @@ def _range_noise(errors: FloatArray, ranges: FloatArray) -> tuple[float, tuple[f
     a, lo, hi = np.exp(best)
     lo, hi = min(lo, hi), max(lo, hi)
     # a bound no range reaches is not identified: put it where the data end
-    if a * r_min >= lo:  # no range reaches the floor
-        lo = a * r_min
-    if a * r_max <= hi:  # no range reaches the ceiling
-        hi = a * r_max
+    lo = max(lo, a * r_min)  # a floor no range reaches: where the data end
+    hi = min(hi, a * r_max)  # likewise a ceiling
     return float(a), (float(lo), float(max(hi, lo)))
 
 
@@ -633,7 +633,7 @@ def calibrate(
         outliers[str(robot)] = {
             "range_beyond_3_sigma": float(np.mean(np.abs(r_err) > 3.0 * r_scale)),
             "bearing_beyond_3_sigma": float(np.mean(np.abs(b_err) > 3.0 * sigma_bearing)),
-            "readings": int(len(ranges)),
+            "readings": len(ranges),
         }
         correlations[str(robot)] = {
             "range": _error_correlations(times, subjects, r_err, r_scale),
@@ -647,7 +647,7 @@ def calibrate(
         "sensor_outliers": outliers,
         "sensor_error_correlation": correlations,
         "windows": {"correction_1s": int(sum(len(w[0]) for w in second.values())),
-                    "noise": int(len(features))},
+                    "noise": len(features)},
         "seconds_of_ground_truth": {str(t.robot): float(np.count_nonzero(t.valid) * STEP) for t in tracks},
     }  # fmt: skip
     return Calibration(
@@ -745,7 +745,7 @@ def simulate_logs(
         path = np.empty((steps + 1, 3))
         path[0] = pose
         stamp_time = STEP * np.arange(steps)
-        latency_steps = int(round(truth.command_latency / STEP))
+        latency_steps = round(truth.command_latency / STEP)
         while k < steps:
             length = int(rng.uniform(0.5, 4.0) / STEP)
             away = path[k, :2] - centre
@@ -825,7 +825,9 @@ def write_dataset(folder, logs: Mapping[int, mrclam.MrclamLog]) -> Path:
     first = next(iter(logs.values()))
     np.savetxt(folder / mrclam.BARCODES_FILE, first.barcodes, fmt="%d", header="Subject #    Barcode #")
     lm = first.landmarks
-    columns = [lm.subject, lm.x, lm.y] + ([lm.std_x, lm.std_y] if lm.std_x is not None else [])
+    columns: list[NDArray] = [lm.subject, lm.x, lm.y]
+    if lm.std_x is not None and lm.std_y is not None:
+        columns += [lm.std_x, lm.std_y]
     np.savetxt(folder / mrclam.LANDMARKS_FILE, np.column_stack(columns), fmt=["%d"] + ["%.9f"] * (len(columns) - 1),
                header="Subject #    x [m]    y [m]    x std-dev [m]    y std-dev [m]")  # fmt: skip
     for robot, log in logs.items():
@@ -851,15 +853,15 @@ def summary(calibration: Calibration) -> str:
     """A short human-readable table of a calibration."""
     c = calibration.correction
     lines = [
-        f"command correction  v' = {c.speed_scale:.4f} v max(0, 1 - {c.turn_slowdown:.3f}|w|) + {c.speed_offset:+.4f}, "
-        f"w' = {c.turn_scale:.4f} w + {c.turn_offset:+.5f}",
+        (f"command correction  v' = {c.speed_scale:.4f} v max(0, 1 - {c.turn_slowdown:.3f}|w|) + {c.speed_offset:+.4f}, "
+         f"w' = {c.turn_scale:.4f} w + {c.turn_offset:+.5f}"),
         f"command latency     {calibration.command_latency:.3f} s",
         f"motion noise (per second, fitted at {calibration.horizon:g} s; constant, per v^2, per w^2)",
         f"  forward [m^2/s]   {calibration.forward[0]:.3e}  {calibration.forward[1]:.3e}  {calibration.forward[2]:.3e}",
         f"  turn  [rad^2/s]   {calibration.turn[0]:.3e}  {calibration.turn[1]:.3e}  {calibration.turn[2]:.3e}",
         f"  lateral [m^2/s]   {calibration.lateral[0]:.3e}  {calibration.lateral[1]:.3e}  {calibration.lateral[2]:.3e}",
-        f"range noise         sigma_r = clip({calibration.range_slope:.4f} r, {calibration.range_bounds[0]:.4f}, "
-        f"{calibration.range_bounds[1]:.4f}) m",
+        (f"range noise         sigma_r = clip({calibration.range_slope:.4f} r, {calibration.range_bounds[0]:.4f}, "
+         f"{calibration.range_bounds[1]:.4f}) m"),
         f"bearing noise       sigma_phi = {calibration.sigma_bearing:.4f} rad",
         f"sensor latency      {calibration.sensor_latency:.3f} s",
         "robot  heading offset [mrad]  bearing bias [mrad]  range bias [m]",

@@ -57,7 +57,7 @@ from seif_gym.progress import Progress
 from seif_gym.slam.models import wrap_angle
 from seif_gym.slam.noise_models import RangeDependentSensor
 
-__all__ = ["RunnerConfig", "MrclamRun", "run_robot", "score", "save_runs", "plot_runs", "main"]
+__all__ = ["MrclamRun", "RunnerConfig", "chi2_band", "main", "plot_runs", "run_robot", "save_runs", "score", "table"]
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]

@@ -146,7 +146,7 @@ def huber_regression(
             b = new
             break
         b = new
-    return b, scale
+    return np.asarray(b, dtype=np.float64), float(scale)
 
 
 def scale_consistency(k: float = SCALE_K) -> float:

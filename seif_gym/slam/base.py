@@ -279,7 +279,7 @@ class SlamFilter(ABC):
         """``Q_i^-1`` of each measurement (m, 2, 2) for a range-dependent sensor; None when all share ``Q``."""
         if not self._range_noise:
             return None
-        return np.linalg.inv(self._noise_covariances(ranges))
+        return np.asarray(np.linalg.inv(self._noise_covariances(ranges)), dtype=np.float64)
 
     def _update_known(self, ranges, bearings, ids) -> None:
         """The update with the measurements the gate kept: new ids appended, then :meth:`_update`."""

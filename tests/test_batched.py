@@ -91,3 +91,14 @@ def test_batched_seif_checks_its_inputs_before_any_filter_moves():
         BatchedSEIF(1, 10, sensor, sensor)
     with pytest.raises(ValueError, match="index"):
         batch.reset(5, run.initial_pose)
+
+
+def test_batched_seif_refuses_filters_it_cannot_reproduce():
+    motion, sensor, run = make_loop_run(FIDELITY_SCENARIOS["circle"], 0)
+    batch = BatchedSEIF(1, 10, motion, sensor)
+    with pytest.raises(ValueError, match="innovation_gate"):
+        batch.load(0, SEIF(motion, sensor, run.initial_pose, innovation_gate=13.8))
+    with pytest.raises(ValueError, match="options"):
+        batch.load(0, SEIF(motion, sensor, run.initial_pose, max_active=4))
+    with pytest.raises(TypeError, match="SEIF"):
+        batch.load(0, object())

@@ -159,6 +159,11 @@ class BatchedSEIF:
                 or filt.recovery_relaxation != self.recovery_relaxation
                 or filt.recovery_tolerance != self.recovery_tolerance):  # fmt: skip
             raise ValueError(f"filt's options {options} differ from the batch's")
+        # the batch has no innovation gate and one measurement covariance for all ranges
+        if options.get("innovation_gate") is not None:
+            raise ValueError("filt has an innovation_gate; the batch's update does not gate")
+        if getattr(filt.sensor, "range_dependent", False):
+            raise ValueError("filt's sensor has range-dependent noise; the batch uses one measurement covariance")
         store = filt._store
         n = store.num_landmarks
         if n > self.capacity:

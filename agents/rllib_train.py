@@ -3,7 +3,7 @@
 .. code-block:: bash
 
     python -m agents.rllib_train --env SeifExplore-v1 --timesteps 200000 --out runs/rllib \\
-        [--num-env-runners 2] [--num-envs-per-env-runner 4] [--address auto|HOST:PORT] [--seed 0] [--quiet]
+        [--num-env-runners 2] [--num-envs-per-env-runner 8] [--address auto|HOST:PORT] [--seed 0] [--quiet]
 
 Needs the optional ``ray`` extra (``pip install -e ".[train,ray]"``).
 

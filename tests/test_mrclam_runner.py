@@ -14,34 +14,19 @@
 from __future__ import annotations
 
 from dataclasses import replace
-from pathlib import Path
 
 import numpy as np
 import pytest
+from mrclam_fixtures import (  # tests/ is on sys.path under pytest
+    DATA_DIR,
+    TRUTH,
+    requires_data,
+)
 
 from seif_gym.datasets import mrclam
 from seif_gym.datasets import mrclam_calibration as mc
 from seif_gym.datasets import mrclam_runner as mr
-from seif_gym.slam.noise_models import CommandCorrection
 
-DATA_DIR = Path(__file__).resolve().parents[2] / "shared" / "data" / "mrclam" / "MRCLAM_Dataset6"
-requires_data = pytest.mark.skipif(
-    not DATA_DIR.is_dir(),
-    reason=f"MRCLAM Dataset 6 not found at {DATA_DIR} (expected ../shared/data/mrclam beside the repository)",
-)
-
-TRUTH = mc.Calibration(
-    correction=CommandCorrection(speed_scale=1.05, turn_slowdown=1.1, turn_scale=0.94),
-    command_latency=0.22,
-    forward=(2e-5, 0.01, 0.0),
-    turn=(5e-5, 0.02, 2e-3),
-    lateral=(1e-6, 0.0, 0.0),
-    range_slope=0.045,
-    range_bounds=(0.06, 0.28),
-    sigma_bearing=0.009,
-    sensor_latency=0.035,
-    robots={1: mc.RobotCalibration(0.008, 0.005, 0.0), 2: mc.RobotCalibration(-0.012, -0.014, 0.0)},
-)
 #: The true models, every reading used once (the simulator's errors are white).
 PLAIN = replace(mr.RunnerConfig(), noise_inflation=1.0, min_interval=0.0)
 

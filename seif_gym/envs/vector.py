@@ -352,7 +352,9 @@ class SeifExploreVectorEnv(VectorEnv):
         return single.render()
 
     def close_extras(self, **kwargs: Any) -> None:
-        if self._sync is not None:
-            self._sync.close()
-        for env in self.envs:
+        # also after a constructor that failed before these attributes existed (close() runs on collection)
+        sync = getattr(self, "_sync", None)
+        if sync is not None:
+            sync.close()
+        for env in getattr(self, "envs", ()):
             env.close()

@@ -14,6 +14,7 @@ import numpy as np
 from numba import njit
 from numpy.typing import NDArray
 
+from seif_gym.slam._kernels import _wrap_float
 from seif_gym.slam.models import RangeBearingSensor, VelocityMotionModel, _visible_measurements, wrap_angle
 
 __all__ = ["LAYOUTS", "WorldConfig", "World", "BatchedWorld", "make_landmarks"]
@@ -154,15 +155,6 @@ def _displacement(theta, v, w, dt):
 
 
 @njit(cache=True)
-def _wrap(angle):
-    """``wrap_angle`` of a float."""
-    wrapped = (angle + np.pi) % (2.0 * np.pi) - np.pi
-    if wrapped >= np.pi:
-        wrapped -= 2.0 * np.pi
-    return wrapped
-
-
-@njit(cache=True)
 def _step_worlds(poses, controls, dt, alphas, half_size, noise, cursor, executed, wall):
     """:meth:`World.step` of every world ``e``, its motion noise read from ``noise[e, cursor[e]:]``."""
     for e in range(poses.shape[0]):
@@ -182,10 +174,10 @@ def _step_worlds(poses, controls, dt, alphas, half_size, noise, cursor, executed
         gamma = np.sqrt(alphas[4] * vv + alphas[5] * ww) * noise[e, c + 2]
         cursor[e] = c + 3
         dx, dy, dth = _displacement(theta, v_hat, w_hat, dt)
-        heading = _wrap(theta + dth + gamma * dt)
+        heading = _wrap_float(theta + dth + gamma * dt)
         poses[e, 0] = min(max(x + dx, -half_size), half_size)
         poses[e, 1] = min(max(y + dy, -half_size), half_size)
-        poses[e, 2] = _wrap(heading)
+        poses[e, 2] = _wrap_float(heading)
 
 
 @njit(cache=True)

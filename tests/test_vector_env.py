@@ -144,3 +144,24 @@ def test_vector_env_passes_checker_style_checks():
     with pytest.raises(ValueError, match="seed"):
         env.reset(seed=[1, 2])
     env.close()
+
+
+def test_large_maps_take_the_sparse_pose_marginal_like_the_single_env(monkeypatch):
+    """Above the dense threshold both envs factorise Omega sparsely, and info['pose_nees'] still agrees bit for bit."""
+    from seif_gym.envs import vector
+    from seif_gym.slam import SEIF
+
+    monkeypatch.setattr(vector, "DENSE_MARGINALS_UP_TO", 1)
+    monkeypatch.setattr(SEIF, "DENSE_MARGINALS_UP_TO", 1)
+    native = SeifExploreVectorEnv(2, max_episode_steps=30)
+    reference = SyncVectorEnv([lambda: gym.make("SeifExplore-v1", max_episode_steps=30) for _ in range(2)])
+    native.reset(seed=8)
+    reference.reset(seed=8)
+    rng = np.random.default_rng(2)
+    sparse_steps = 0
+    for t in range(25):
+        actions = rng.uniform(-1, 1, size=(2, 2))
+        got, expected = native.step(actions), reference.step(actions)
+        _assert_equal(got[4], expected[4], f"step {t} info")
+        sparse_steps += int((got[4]["landmarks_mapped"] > 1).sum())
+    assert sparse_steps > 10  # the sparse path was taken

@@ -19,9 +19,11 @@ registered ``-v1`` id). Any other configuration runs as a
 Equal to N single envs: with the same seeds, every observation, reward,
 termination, truncation and info equals what a ``SyncVectorEnv`` of
 ``gym.make`` envs (time limit included) returns, bit for bit, in both
-autoreset modes; one exception: ``info["pose_nees"]`` on maps of more than
-:attr:`SEIF.DENSE_MARGINALS_UP_TO` landmarks, where the single env factorises
-Ω sparsely and this env densely (equal to about 1e-12 relative).
+autoreset modes. ``info["pose_nees"]`` needs the exact pose marginal: a
+compiled dense factorisation of Ω for maps of up to
+:data:`~seif_gym.slam.seif.DENSE_MARGINALS_UP_TO` landmarks, the single env's
+sparse LU above (:func:`~seif_gym.slam.seif.exact_marginal_covariance`), as
+the single env does.
 """
 
 from __future__ import annotations
@@ -42,7 +44,8 @@ from seif_gym.metrics import map_error_kernel, nees_kernel
 from seif_gym.observation import encode_many
 from seif_gym.slam import _kernels
 from seif_gym.slam.batched import BatchedSEIF
-from seif_gym.slam.seif import SEIF
+from seif_gym.slam.models import wrap_angle
+from seif_gym.slam.seif import DENSE_MARGINALS_UP_TO, SEIF, exact_marginal_covariance
 from seif_gym.world import BatchedWorld
 
 __all__ = ["SeifExploreVectorEnv"]
@@ -51,9 +54,13 @@ __all__ = ["SeifExploreVectorEnv"]
 @njit(cache=True)
 def _score_many(true_poses, truth, mean, counters, ids, robot_info, robot_links, landmark_info, neighbour_index,
                 neighbour_info, neighbour_count, information_vector, block_position, blanket_covariances, d_cap,
-                previous_error, wall, wall_penalty, divergence_threshold, reward, map_error, pose_error, diverged,
-                pose_nees, pose_nees_blanket):  # fmt: skip
-    """Reward, map error, pose error, divergence and the two pose NEES of every env (``SeifExploreEnv.step``)."""
+                previous_error, wall, wall_penalty, divergence_threshold, dense_up_to, reward, map_error, pose_error,
+                diverged, pose_nees, pose_nees_blanket):  # fmt: skip
+    """Reward, map error, pose error, divergence and the two pose NEES of every env (``SeifExploreEnv.step``).
+
+    ``pose_nees`` is left NaN for maps of more than ``dense_up_to`` landmarks: a dense factorisation of
+    their Omega does not belong in a step, the caller solves those sparsely.
+    """
     for e in range(mean.shape[0]):
         error = np.empty(3)
         n = counters[e, 0]
@@ -70,16 +77,15 @@ def _score_many(true_poses, truth, mean, counters, ids, robot_info, robot_links,
         diverged[e] = pose_error[e] > divergence_threshold
         error[0] = dx
         error[1] = dy
-        heading = true_poses[e, 2] - mean[e, 2]
-        wrapped = (heading + np.pi) % (2.0 * np.pi) - np.pi
-        if wrapped >= np.pi:
-            wrapped -= 2.0 * np.pi
-        error[2] = wrapped
+        error[2] = _kernels._wrap_float(true_poses[e, 2] - mean[e, 2])
+        pose_nees_blanket[e] = nees_kernel(error, blanket_covariances[e])
+        if n > dense_up_to:
+            pose_nees[e] = np.nan  # a large map: the caller's sparse factorisation, as the single env's
+            continue
         cov = _kernels.exact_marginal(robot_info[e], robot_links[e], landmark_info[e], neighbour_index[e],
                                       neighbour_info[e], neighbour_count[e], information_vector[e], mean[e],
                                       block_position[e], n, np.arange(3))  # fmt: skip
         pose_nees[e] = nees_kernel(error, 0.5 * (cov + cov.T))
-        pose_nees_blanket[e] = nees_kernel(error, blanket_covariances[e])
 
 
 def _same(env: gym.Env) -> gym.Env:
@@ -246,8 +252,14 @@ class SeifExploreVectorEnv(VectorEnv):
                     filters.robot_links, filters.landmark_info, filters.neighbour_index, filters.neighbour_info,
                     filters.neighbour_count, filters.information_vector, filters.block_position,
                     self._blanket_covariances, reward_config.d_cap, self._previous_error, wall,
-                    reward_config.wall_penalty, reward_config.divergence_threshold, rewards, map_error, pose_error,
-                    diverged, pose_nees, pose_nees_blanket)  # fmt: skip
+                    reward_config.wall_penalty, reward_config.divergence_threshold, DENSE_MARGINALS_UP_TO, rewards,
+                    map_error, pose_error, diverged, pose_nees, pose_nees_blanket)  # fmt: skip
+        for e in np.flatnonzero(filters.counters[:, 0] > DENSE_MARGINALS_UP_TO).tolist():
+            # large maps: the single env's sparse LU on this env's arrays (exactly what it computes)
+            error = world.poses[e] - filters.mean[e, :3]
+            error[2] = wrap_angle(float(error[2]))
+            cov = exact_marginal_covariance(filters.store(e), np.arange(3), DENSE_MARGINALS_UP_TO)
+            pose_nees[e] = nees_kernel(error, cov)
         self._elapsed += 1
         terminated = diverged.copy()
         truncated = (self._elapsed >= self.max_episode_steps if self.max_episode_steps is not None

@@ -33,6 +33,7 @@ from numpy.typing import ArrayLike, NDArray
 from seif_gym.slam import _kernels
 from seif_gym.slam._validation import as_finite_array, as_positive_scalar
 from seif_gym.slam.base import DEFAULT_INITIAL_POSE_COV
+from seif_gym.slam.information import InformationStore
 from seif_gym.slam.models import RangeBearingSensor, VelocityMotionModel, wrap_angle
 from seif_gym.slam.seif import SEIF
 
@@ -272,6 +273,16 @@ class BatchedSEIF:
     def num_landmarks(self) -> IntArray:
         """Landmarks in each filter's map, shape (N,) (a copy)."""
         return self.counters[:, _LANDMARKS].copy()
+
+    def store(self, index: int) -> InformationStore:
+        """Filter ``index``'s information as an :class:`InformationStore` over views of the batch's arrays (no copy)."""
+        e = int(index)
+        view = InformationStore.__new__(InformationStore)
+        view.num_landmarks = int(self.counters[e, _LANDMARKS])
+        for name in ("robot_info", "robot_links", "landmark_info", "neighbour_index", "neighbour_info",
+                     "neighbour_count", "information_vector", "mean", "block_position"):  # fmt: skip
+            setattr(view, name, getattr(self, name)[e])
+        return view
 
     def landmarks(self, index: int) -> FloatArray:
         """Landmark means of filter ``index`` in state order, shape (n, 2) (a copy)."""

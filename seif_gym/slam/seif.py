@@ -40,6 +40,8 @@ from seif_gym.slam.models import wrap_angle
 
 __all__ = [
     "SEIF",
+    "DENSE_MARGINALS_UP_TO",
+    "exact_marginal_covariance",
     "motion_update",
     "measurement_update",
     "sparsify",
@@ -220,6 +222,37 @@ def recover_mean_amortized(store: InformationStore, landmarks: IndexArray, activ
     for i in active:
         rhs -= store.robot_links[i] @ mean[3 + 2 * i : 5 + 2 * i]
     mean[:3] = np.linalg.solve(store.robot_info, rhs)
+
+
+#: Up to this many landmarks, exact marginals factorise the dense ``Omega`` (faster than a sparse LU there).
+DENSE_MARGINALS_UP_TO = 60
+
+
+def exact_marginal_covariance(store: InformationStore, state_indices: IndexArray,
+                              dense_up_to: int = DENSE_MARGINALS_UP_TO) -> FloatArray:  # fmt: skip
+    """Exact marginal covariance ``[Omega^-1]`` over ``state_indices``: a global solve, never constant time.
+
+    Up to ``dense_up_to`` landmarks, a dense Cholesky of
+    ``Omega`` gathered by a compiled kernel (O(n^3), at most a 123 x 123
+    matrix: 20-40 us at 30-50 landmarks, where the sparse LU's fixed
+    overhead costs 300-450 us); above, a sparse LU (O(n) to O(n^1.5)).
+    Per-step callers (the env's ``info["pose_nees"]``, single or batched) pay
+    this; the filter's own steps never call it. ``tests/test_seif.py`` checks
+    both paths against the inverse of the dense matrix.
+    """
+    if store.num_landmarks <= dense_up_to:
+        cov = _kernels.exact_marginal(
+            store.robot_info, store.robot_links, store.landmark_info,
+            store.neighbour_index, store.neighbour_info, store.neighbour_count,
+            store.information_vector, store.mean, store.block_position, store.num_landmarks,
+            np.asarray(state_indices, dtype=np.int64),
+        )  # fmt: skip
+    else:
+        unit = np.zeros((store.state_dim, len(state_indices)))
+        unit[state_indices, np.arange(len(state_indices))] = 1.0
+        solver = scipy.sparse.linalg.splu(store.to_sparse().tocsc(), permc_spec="MMD_AT_PLUS_A")
+        cov = solver.solve(unit)[state_indices]
+    return 0.5 * (cov + cov.T)
 
 
 class RecoveryQueue:
@@ -930,34 +963,12 @@ class SEIF(SlamFilter):
     def _mean_vector(self) -> FloatArray:
         return self._store.mean_view()
 
-    #: Up to this many landmarks, exact marginals factorise the dense ``Omega`` (faster than a sparse LU there).
-    DENSE_MARGINALS_UP_TO: ClassVar[int] = 60
+    #: Up to this many landmarks, exact marginals factorise the dense ``Omega`` (:func:`exact_marginal_covariance`).
+    DENSE_MARGINALS_UP_TO: ClassVar[int] = DENSE_MARGINALS_UP_TO
 
     def _marginal_covariance(self, state_indices: IndexArray) -> FloatArray:
-        """Exact marginal covariance ``[Omega^-1]`` over ``state_indices``: a global solve, never constant time.
-
-        Up to :attr:`DENSE_MARGINALS_UP_TO` landmarks, a dense Cholesky of
-        ``Omega`` gathered by a compiled kernel (O(n^3), at most a 123 x 123
-        matrix: 20-40 us at 30-50 landmarks, where the sparse LU's fixed
-        overhead costs 300-450 us); above, a sparse LU (O(n) to O(n^1.5)).
-        Per-step callers (the env's ``info["pose_nees"]``) pay this; the
-        filter's own steps never call it. ``tests/test_seif.py`` checks both
-        paths against the inverse of the dense matrix.
-        """
-        store = self._store
-        if self.num_landmarks <= self.DENSE_MARGINALS_UP_TO:
-            cov = _kernels.exact_marginal(
-                store.robot_info, store.robot_links, store.landmark_info,
-                store.neighbour_index, store.neighbour_info, store.neighbour_count,
-                store.information_vector, store.mean, store.block_position, self.num_landmarks,
-                np.asarray(state_indices, dtype=np.int64),
-            )  # fmt: skip
-        else:
-            unit = np.zeros((store.state_dim, len(state_indices)))
-            unit[state_indices, np.arange(len(state_indices))] = 1.0
-            solver = scipy.sparse.linalg.splu(store.to_sparse().tocsc(), permc_spec="MMD_AT_PLUS_A")
-            cov = solver.solve(unit)[state_indices]
-        return 0.5 * (cov + cov.T)
+        """Exact marginal covariance ``[Omega^-1]`` over ``state_indices`` (:func:`exact_marginal_covariance`)."""
+        return exact_marginal_covariance(self._store, state_indices, self.DENSE_MARGINALS_UP_TO)
 
     def _full_covariance(self) -> FloatArray:
         omega = self._store.to_sparse().toarray()

@@ -22,6 +22,27 @@ from torch import nn
 __all__ = ["BeliefExtractor", "BeliefPolicy"]
 
 
+def belief_map_encoder(channels: int, height: int, width: int, map_features: int) -> tuple[nn.Sequential, nn.Sequential]:
+    """The belief map's CNN (three strided convolutions, flattened) and its linear head to ``map_features``.
+
+    Shared by the SB3 extractor (:class:`BeliefExtractor`) and the RLlib module
+    (``agents.rllib_agent``), so that both read the map with one architecture.
+    Built in this order (CNN, then head), so seeded initialisations stay as they were.
+    """
+    cnn = nn.Sequential(
+        nn.Conv2d(channels, 16, kernel_size=4, stride=2, padding=1),
+        nn.ReLU(),
+        nn.Conv2d(16, 32, kernel_size=4, stride=2, padding=1),
+        nn.ReLU(),
+        nn.Conv2d(32, 32, kernel_size=3, stride=2, padding=1),
+        nn.ReLU(),
+        nn.Flatten(),
+    )
+    with torch.no_grad():
+        flat = int(cnn(torch.zeros(1, channels, height, width)).shape[1])
+    return cnn, nn.Sequential(nn.Linear(flat, int(map_features)), nn.ReLU())
+
+
 class BeliefExtractor(BaseFeaturesExtractor):
     """A small CNN for ``belief_map`` and an MLP for the vector entries.
 
@@ -49,18 +70,7 @@ class BeliefExtractor(BaseFeaturesExtractor):
         vector_size = sum(int(torch.tensor(observation_space[key].shape).prod()) for key in vector_keys)
         super().__init__(observation_space, features_dim=map_features + vector_size)
         self.vector_keys = vector_keys
-        self.cnn = nn.Sequential(
-            nn.Conv2d(channels, 16, kernel_size=4, stride=2, padding=1),
-            nn.ReLU(),
-            nn.Conv2d(16, 32, kernel_size=4, stride=2, padding=1),
-            nn.ReLU(),
-            nn.Conv2d(32, 32, kernel_size=3, stride=2, padding=1),
-            nn.ReLU(),
-            nn.Flatten(),
-        )
-        with torch.no_grad():
-            flat = self.cnn(torch.zeros(1, channels, height, width)).shape[1]
-        self.map_head = nn.Sequential(nn.Linear(flat, map_features), nn.ReLU())
+        self.cnn, self.map_head = belief_map_encoder(channels, height, width, map_features)
 
     def forward(self, observations: dict[str, torch.Tensor]) -> torch.Tensor:
         """The belief map's embedding followed by the flattened vector entries, per batch row."""

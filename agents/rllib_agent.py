@@ -56,6 +56,7 @@ from ray.rllib.core.rl_module.torch import TorchRLModule
 from torch import nn
 
 from agents.baselines import Agent
+from agents.networks import belief_map_encoder
 
 __all__ = ["AGENT_PREFIX", "DEFAULT_MODEL_CONFIG", "MAP_KEY", "BeliefRLModule", "RLlibAgent", "module_checkpoint"]
 
@@ -145,18 +146,7 @@ class BeliefRLModule(TorchRLModule, ValueFunctionAPI):
             raise TypeError(f"model_config['log_std_init'] must be a finite number, got {log_std_init!r}")
 
         channels, height, width = image.shape
-        self.cnn = nn.Sequential(
-            nn.Conv2d(channels, 16, kernel_size=4, stride=2, padding=1),
-            nn.ReLU(),
-            nn.Conv2d(16, 32, kernel_size=4, stride=2, padding=1),
-            nn.ReLU(),
-            nn.Conv2d(32, 32, kernel_size=3, stride=2, padding=1),
-            nn.ReLU(),
-            nn.Flatten(),
-        )
-        with torch.no_grad():
-            flat = int(self.cnn(torch.zeros(1, channels, height, width)).shape[1])
-        self.map_head = nn.Sequential(nn.Linear(flat, int(map_features)), nn.ReLU())
+        self.cnn, self.map_head = belief_map_encoder(channels, height, width, int(map_features))
         vector_size = sum(gym.spaces.flatdim(space[key]) for key in self.vector_keys)
         self.vector_mlp = _mlp([vector_size, *vector_hiddens], nn.ReLU)
         features = int(map_features) + (vector_hiddens[-1] if vector_hiddens else vector_size)

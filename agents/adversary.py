@@ -1,4 +1,4 @@
-"""An adversarial reward for ``SeifExplore``: drive where the SEIF does worse than the EKF.
+r"""An adversarial reward for ``SeifExplore``: drive where the SEIF does worse than the EKF.
 
 :class:`SeifVsEkfReward` wraps a ``SeifExplore`` env and runs a *shadow* EKF
 on exactly the data the env's own filter (the SEIF) gets: it is built at
@@ -34,9 +34,9 @@ Training (the policy still observes only the SEIF's belief; only the reward
 changes). The shipped ``agents/policies/ppo_adversary.zip`` is the 200 k-step
 checkpoint of (``ppo_v1.zip``: the exploring policy shipped until commit 55db0f1, see ``docs/robustness.md``)::
 
-    python -m agents.train --algo ppo --env SeifExplore-v0 \\
-        --init-from ppo_v1.zip \\
-        --wrapper agents.adversary:SeifVsEkfReward --wrapper-kwargs '{"nees_weight": 0.01}' \\
+    python -m agents.train --algo ppo --env SeifExplore-v0 \
+        --init-from ppo_v1.zip \
+        --wrapper agents.adversary:SeifVsEkfReward --wrapper-kwargs '{"nees_weight": 0.01}' \
         --hyperparams learning_rate=1e-4 --timesteps 250000 --out runs/adversary_nees --seed 5
 
 From scratch and with the gap alone (``nees_weight = 0``) PPO learned to
@@ -55,13 +55,13 @@ hardly move: the gap is zero for a robot that sees little.
 from __future__ import annotations
 
 import math
-from typing import Any
+from typing import Any, cast
 
 import gymnasium as gym
 import numpy as np
 
 from seif_gym.envs.explore import SeifExploreEnv, map_error
-from seif_gym.slam import make_filter
+from seif_gym.slam import SlamFilter, make_filter
 from seif_gym.slam.models import wrap_angle
 
 __all__ = ["SeifVsEkfReward"]
@@ -98,15 +98,22 @@ class SeifVsEkfReward(gym.Wrapper, gym.utils.RecordConstructorArgs):
         self.nees_weight = nees_weight
         self.nees_cap = nees_cap
         self.reference = reference
-        self.shadow = None  # the shadow filter of the current episode
+        self.shadow: SlamFilter | None = None  # the shadow filter of the current episode
         self.gap = math.nan  # G_t
 
     # -- helpers ----------------------------------------------------------------------------------
+    def _base(self) -> SeifExploreEnv:
+        return cast(SeifExploreEnv, self.env.unwrapped)  # checked by the constructor
+
     def _shadow_error(self) -> float:
-        base = self.env.unwrapped
-        shadow = self.shadow
+        base, shadow = self._base(), self.shadow
+        if shadow is None or base.world is None:
+            raise RuntimeError("call reset() first")
         return map_error(
-            np.asarray(shadow.landmarks), base.world.landmarks, np.asarray(shadow.landmark_ids), base.reward_config.d_cap
+            np.asarray(shadow.landmarks),
+            base.world.landmarks,
+            np.asarray(shadow.landmark_ids),
+            base.reward_config.d_cap,
         )
 
     @staticmethod
@@ -119,7 +126,9 @@ class SeifVsEkfReward(gym.Wrapper, gym.utils.RecordConstructorArgs):
         )
 
     def _seif_nees(self, info: dict[str, Any]) -> float:
-        filt = self.env.unwrapped.filter
+        filt = self._base().filter
+        if filt is None:
+            raise RuntimeError("call reset() first")
         error = np.asarray(info["true_pose"], dtype=np.float64) - np.asarray(filt.pose, dtype=np.float64)
         error[2] = wrap_angle(float(error[2]))
         try:
@@ -137,9 +146,11 @@ class SeifVsEkfReward(gym.Wrapper, gym.utils.RecordConstructorArgs):
     # -- gymnasium API ----------------------------------------------------------------------------
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
         observation, info = self.env.reset(seed=seed, options=options)
-        base = self.env.unwrapped
+        base = self._base()
         # the env's filter starts at the true start pose with the default covariance (as replay does)
-        self.shadow = make_filter(self.reference, base.motion, base.sensor, np.asarray(info["true_pose"], dtype=np.float64))
+        self.shadow = make_filter(
+            self.reference, base.motion, base.sensor, np.asarray(info["true_pose"], dtype=np.float64)
+        )
         self.shadow.update(*self._measurements(info))
         ekf_error = self._shadow_error()
         self.gap = float(info["map_error"]) - ekf_error
@@ -149,7 +160,7 @@ class SeifVsEkfReward(gym.Wrapper, gym.utils.RecordConstructorArgs):
         if self.shadow is None:
             raise RuntimeError("call reset() before step()")
         observation, _, terminated, truncated, info = self.env.step(action)
-        base = self.env.unwrapped
+        base = self._base()
         self.shadow.predict(np.asarray(info["executed_control"], dtype=np.float64), base.robot_config.dt)
         self.shadow.update(*self._measurements(info))
         ekf_error = self._shadow_error()

@@ -61,11 +61,10 @@ reads as floats in ``[0, 1]``. Cell ``(i, j)`` has its centre
 
 from __future__ import annotations
 
-from abc import ABC, abstractmethod
-
 import copy
 import math
 import time
+from abc import ABC, abstractmethod
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from types import SimpleNamespace
@@ -316,11 +315,13 @@ class Agent(ABC):
         count = pose.shape[0] if batched else 1
         if episode_start is not None:
             starts = np.broadcast_to(np.asarray(episode_start, dtype=bool).reshape(-1), (count,))
-            for index in np.flatnonzero(starts):
-                self.reset(int(index))
+            for started in np.flatnonzero(starts):
+                self.reset(int(started))
         actions = np.empty((count, 2), dtype=np.float32)
         for index in range(count):
-            single = {key: np.asarray(value)[index] if batched else np.asarray(value) for key, value in observation.items()}
+            single = {
+                key: np.asarray(value)[index] if batched else np.asarray(value) for key, value in observation.items()
+            }
             actions[index] = np.clip(self._act(single, index), -1.0, 1.0)
         return (actions if batched else actions[0]), state
 
@@ -548,7 +549,9 @@ class FrontierAgent(Agent):
         """Distance ahead to the nearest outside-arena cell in the corridor, metres (``inf`` if none)."""
         belief = read_belief_map(observation)
         raster = self.raster(belief.shape[1])
-        blocked = (belief[2] >= 0.5) & (raster.forward > 0.0) & (np.abs(raster.left) <= self.corridor + 0.5 * raster.cell)
+        blocked = (
+            (belief[2] >= 0.5) & (raster.forward > 0.0) & (np.abs(raster.left) <= self.corridor + 0.5 * raster.cell)
+        )
         if not blocked.any():
             return math.inf
         return float(raster.forward[blocked].min() - 0.5 * raster.cell)
@@ -689,6 +692,7 @@ class RevisitAgent(FrontierAgent):
                     memory.revisits += 1
         if memory.mode == "revisit":
             memory.mode_steps += 1
+            assert memory.target is not None  # chosen when the mode turned to revisit
             forward, left = _to_robot_frame(
                 memory.target[0] - pose[0], memory.target[1] - pose[1], _heading(pose), self.geometry.half
             )
@@ -784,7 +788,9 @@ class InfoGainAgent(FrontierAgent):
     ) -> None:
         envs = _env_list(env)
         if not envs:
-            raise TypeError("env must be the SeifExplore env(s) info_gain acts in (it plans with their filter), got None")
+            raise TypeError(
+                "env must be the SeifExplore env(s) info_gain acts in (it plans with their filter), got None"
+            )
         super().__init__(envs[0], **kwargs)
         self.geometry = Geometry.from_env(env)  # every env's: one geometry
         self.envs = [_unwrapped(e) for e in envs]
@@ -894,7 +900,13 @@ class InfoGainAgent(FrontierAgent):
             walls[k] = np.count_nonzero(np.any(np.abs(poses[:, :2]) > half - self.wall_margin, axis=1))
         score = gain + self.exploration_weight * explore - self.wall_penalty * walls
         best = int(np.argmax(score))
-        self.last_plan = {"candidates": self.candidates, "gain": gain, "explore": explore, "walls": walls, "score": score}
+        self.last_plan = {
+            "candidates": self.candidates,
+            "gain": gain,
+            "explore": explore,
+            "walls": walls,
+            "score": score,
+        }
         self.planning_times.append(time.perf_counter() - started)
         return self.candidates[best].copy()
 
@@ -931,9 +943,7 @@ def _env_list(env: Any) -> list[Any]:
 
 
 # -- factory ---------------------------------------------------------------------------------------
-_REGISTRY: dict[str, type[Agent]] = {
-    cls.name: cls for cls in (RandomAgent, FrontierAgent, RevisitAgent, InfoGainAgent)
-}
+_REGISTRY: dict[str, type[Agent]] = {cls.name: cls for cls in (RandomAgent, FrontierAgent, RevisitAgent, InfoGainAgent)}
 
 #: Names accepted by :func:`make_agent`.
 BASELINES: tuple[str, ...] = tuple(_REGISTRY)

@@ -46,7 +46,6 @@ from pathlib import Path
 from typing import Any
 
 import gymnasium as gym
-import numpy as np
 
 import seif_gym
 from agents import BASELINES

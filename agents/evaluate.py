@@ -1,9 +1,9 @@
-"""Compare agents on the same seeds: ``python -m agents.evaluate``.
+r"""Compare agents on the same seeds: ``python -m agents.evaluate``.
 
 .. code-block:: bash
 
-    python -m agents.evaluate --agents random,frontier,revisit,info_gain,runs/ppo/model.zip \\
-        --episodes 10 --seed 1000 [--env SeifExplore-v1] [--env-kwargs '{"layout": "loop"}'] [--out DIR] \\
+    python -m agents.evaluate --agents random,frontier,revisit,info_gain,runs/ppo/model.zip \
+        --episodes 10 --seed 1000 [--env SeifExplore-v1] [--env-kwargs '{"layout": "loop"}'] [--out DIR] \
         [--bootstrap 10000] [--quiet]
 
 Every agent runs ``N`` episodes on the seeds ``S, S+1, …, S+N−1`` (the same
@@ -97,7 +97,7 @@ import math
 import os
 import sys
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -233,7 +233,7 @@ class SB3Agent(Agent):
         if stats_path is not None:
             from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
 
-            factory = env_factory if env_factory is not None else (lambda: env)
+            factory: Callable[[], Any] = env_factory if env_factory is not None else (lambda: env)
             self.vecnormalize = VecNormalize.load(str(stats_path), DummyVecEnv([factory]))
             self.vecnormalize.training = False
             self.vecnormalize.norm_reward = False
@@ -246,9 +246,12 @@ class SB3Agent(Agent):
         deterministic: bool = False,
     ) -> tuple[np.ndarray, Any]:
         """The model's ``predict`` after the saved observation normalisation (if any)."""
+        model_input: Any = dict(observation)
         if self.vecnormalize is not None:
-            observation = self.vecnormalize.normalize_obs(dict(observation))
-        action, state = self.model.predict(observation, state=state, episode_start=episode_start, deterministic=deterministic)
+            model_input = self.vecnormalize.normalize_obs(model_input)
+        action, state = self.model.predict(
+            model_input, state=state, episode_start=episode_start, deterministic=deterministic
+        )
         return np.asarray(action, dtype=np.float32), state
 
     def _act(self, observation: Mapping[str, np.ndarray], index: int) -> np.ndarray:
@@ -700,7 +703,9 @@ def paired_table(summary: Mapping[str, Any], digits: int = 3) -> str:
     return "\n".join(lines)
 
 
-def write_outputs(rows: Sequence[Mapping[str, Any]], summary: Mapping[str, Any], out: str | os.PathLike) -> dict[str, Path]:
+def write_outputs(
+    rows: Sequence[Mapping[str, Any]], summary: Mapping[str, Any], out: str | os.PathLike
+) -> dict[str, Path]:
     """Write ``results.csv``, ``summary.json``, ``summary.md`` and ``map_error.png`` into ``out``.
 
     Returns
@@ -741,7 +746,9 @@ def plot_map_error(summary: Mapping[str, Any], path: str | os.PathLike) -> None:
         steps = np.asarray(curve["step"])
         line = ax.plot(steps, curve["mean"], label=label)[0]
         if curve["ci95_low"] and curve["ci95_low"][0] is not None:
-            ax.fill_between(steps, curve["ci95_low"], curve["ci95_high"], color=line.get_color(), alpha=0.2, linewidth=0)
+            ax.fill_between(
+                steps, curve["ci95_low"], curve["ci95_high"], color=line.get_color(), alpha=0.2, linewidth=0
+            )
     ax.set_xlabel("step")
     ax.set_ylabel("map error (m)")
     ax.set_title(f"{summary['env_id']}: mean map error, 95% CI ({summary['episodes']} episodes)")

@@ -22,7 +22,9 @@ from torch import nn
 __all__ = ["BeliefExtractor", "BeliefPolicy"]
 
 
-def belief_map_encoder(channels: int, height: int, width: int, map_features: int) -> tuple[nn.Sequential, nn.Sequential]:
+def belief_map_encoder(
+    channels: int, height: int, width: int, map_features: int
+) -> tuple[nn.Sequential, nn.Sequential]:
     """The belief map's CNN (three strided convolutions, flattened) and its linear head to ``map_features``.
 
     Shared by the SB3 extractor (:class:`BeliefExtractor`) and the RLlib module

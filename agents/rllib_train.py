@@ -1,8 +1,8 @@
-"""Train PPO on ``SeifExplore`` with RLlib (new API stack): ``python -m agents.rllib_train``.
+r"""Train PPO on ``SeifExplore`` with RLlib (new API stack): ``python -m agents.rllib_train``.
 
 .. code-block:: bash
 
-    python -m agents.rllib_train --env SeifExplore-v1 --timesteps 200000 --out runs/rllib \\
+    python -m agents.rllib_train --env SeifExplore-v1 --timesteps 200000 --out runs/rllib \
         [--num-env-runners 2] [--num-envs-per-env-runner 8] [--address auto|HOST:PORT] [--seed 0] [--quiet]
 
 Needs the optional ``ray`` extra (``pip install -e ".[train,ray]"``).

@@ -1,8 +1,8 @@
-"""The filter robustness harness with policies: ``python -m agents.robustness``.
+r"""The filter robustness harness with policies: ``python -m agents.robustness``.
 
 .. code-block:: bash
 
-    python -m agents.robustness --policies random,frontier,revisit,ppo=runs/ppo/model.zip \\
+    python -m agents.robustness --policies random,frontier,revisit,ppo=runs/ppo/model.zip \
         --layouts uniform,loop --seeds 5 --seed 0 --steps 300 --out eval/robustness [--quiet]
 
 For every (policy, layout, seed) one episode of ``--env`` (default
@@ -34,7 +34,7 @@ import sys
 import time
 from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import gymnasium as gym
 import numpy as np
@@ -42,11 +42,12 @@ import numpy as np
 import seif_gym  # noqa: F401  (registers the environments)
 from agents.baselines import BASELINES, Agent
 from agents.evaluate import agent_labels, build_agent, check_agent_spec, run_episode
+from seif_gym.envs.explore import SeifExploreEnv
 from seif_gym.episodes import Episode, EpisodeRecorder
 from seif_gym.evaluate import (
     FilterSpec,
-    parse_filters,
     default_filters,
+    parse_filters,
     score_episode,
     summary_tables,
     warm_up,
@@ -151,7 +152,7 @@ def evaluate(
         episode_dir.mkdir(parents=True, exist_ok=True)
     template = gym.make(env_id, **env_kwargs)
     try:
-        warm_up(specs, template.unwrapped.config, int(nees_every))
+        warm_up(specs, cast(SeifExploreEnv, template.unwrapped).config, int(nees_every))
     finally:
         template.close()
 
@@ -163,10 +164,14 @@ def evaluate(
             for layout in layouts:
                 env = EpisodeRecorder(gym.make(env_id, layout=layout, max_episode_steps=int(steps), **env_kwargs))
                 try:
-                    agent = None if target == "random" else build_agent(target, env, env_id, {**env_kwargs, "layout": layout}, 0)
+                    agent = (
+                        None
+                        if target == "random"
+                        else build_agent(target, env, env_id, {**env_kwargs, "layout": layout}, 0)
+                    )
                     for seed in seeds:
                         started = time.perf_counter()
-                        policy = build_agent("random", env, env_id, env_kwargs, int(seed)) if target == "random" else agent
+                        policy = build_agent("random", env, env_id, env_kwargs, int(seed)) if agent is None else agent
                         episode = record_episode(env, policy, int(seed))
                         recorded = time.perf_counter() - started
                         if episode_dir is not None:
@@ -198,11 +203,15 @@ def _parser() -> argparse.ArgumentParser:
     parser.add_argument("--policies", default=",".join(DEFAULT_POLICIES),
                         help=f"comma-separated baselines ({', '.join(BASELINES)}), PATH.zip, rllib:CHECKPOINT, "
                              "each optionally LABEL=SPEC")  # fmt: skip
-    parser.add_argument("--layouts", default="uniform", help=f"comma-separated layouts from {', '.join(LAYOUTS)} (default uniform)")
+    parser.add_argument(
+        "--layouts", default="uniform", help=f"comma-separated layouts from {', '.join(LAYOUTS)} (default uniform)"
+    )
     parser.add_argument("--seeds", type=int, default=5, help="episodes per policy and layout (default 5)")
     parser.add_argument("--seed", type=int, default=0, help="first seed (default 0): seeds S .. S+N-1")
     parser.add_argument("--steps", type=int, default=300, help="episode length, max_episode_steps (default 300)")
-    parser.add_argument("--filters", default=None, help=f"comma-separated filters (default {','.join(default_filters())})")
+    parser.add_argument(
+        "--filters", default=None, help=f"comma-separated filters (default {','.join(default_filters())})"
+    )
     parser.add_argument("--env", default="SeifExplore-v0", help="registered env id (default SeifExplore-v0)")
     parser.add_argument("--env-kwargs", default="{}", help="JSON object of further gym.make keyword arguments")
     parser.add_argument("--nees-every", type=int, default=1, help="steps between full-covariance NEES (default 1)")

@@ -113,12 +113,14 @@ class NativeVecEnv(VecEnv):
     def set_attr(self, attr_name: str, value: Any, indices: VecEnvIndices = None) -> None:
         raise AttributeError("set_attr is not meaningful for a native vector env: its state lives in arrays")
 
-    def env_method(self, method_name: str, *method_args: Any, indices: VecEnvIndices = None, **method_kwargs: Any) -> list[Any]:
+    def env_method(
+        self, method_name: str, *method_args: Any, indices: VecEnvIndices = None, **method_kwargs: Any
+    ) -> list[Any]:
         return [getattr(env.unwrapped, method_name)(*method_args, **method_kwargs) for env in self._sub_envs(indices)]
 
     def env_is_wrapped(self, wrapper_class: type[gym.Wrapper], indices: VecEnvIndices = None) -> list[bool]:
         return [False for _ in self._get_indices(indices)]
 
     def get_images(self) -> Sequence[np.ndarray | None]:
-        frame = self.venv.render()  # sub-env 0's frame (an rgb array)
+        frame: Any = self.venv.render()  # sub-env 0's frame (an rgb array)
         return [np.asarray(frame) if frame is not None else None] + [None] * (self.num_envs - 1)

@@ -28,7 +28,7 @@ True
 from __future__ import annotations
 
 import math
-from typing import Any
+from typing import Any, cast
 
 import gymnasium as gym
 import numpy as np
@@ -72,7 +72,8 @@ class CoverageShaping(gym.Wrapper, gym.utils.RecordConstructorArgs):
         self._potential = 0.0
 
     def _swept_fraction(self) -> float:
-        return float(np.count_nonzero(self.env.unwrapped.encoder.coverage)) / self.env.unwrapped.encoder.coverage.size
+        coverage = cast(SeifExploreEnv, self.env.unwrapped).encoder.coverage
+        return float(np.count_nonzero(coverage)) / coverage.size
 
     def reset(self, **kwargs: Any):
         observation, info = self.env.reset(**kwargs)

@@ -52,7 +52,7 @@ def record_gif(policy_path: Path, path: Path, seed: int, every: int = 4, size: i
     env = gym.make(env_id, render_mode="rgb_array")
     agent = SB3Agent(policy_path, env=env)
     observation, _ = env.reset(seed=seed)
-    frames = [env.render()]
+    frames: list[Any] = [env.render()]
     done, step = False, 0
     limit = env.spec.max_episode_steps if env.spec is not None and env.spec.max_episode_steps else 1
     with Progress(int(limit), f"{path.name}", enabled=verbose, unit="steps") as progress:

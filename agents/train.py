@@ -256,6 +256,8 @@ def _experiment_class() -> type:
             :func:`build_parser`'s arguments.
         """
 
+        callbacks: list[Any]  # set by ExperimentManager.__init__
+
         def __init__(self, args: argparse.Namespace) -> None:
             self.options = args
             self.native = args.vec_env == "native"

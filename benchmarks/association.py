@@ -62,8 +62,9 @@ def parse_options(text: str) -> dict[str, object]:
     return options
 
 
-def run_one(scenario_name: str, seed: int, filter_name: str, options: dict | None = None,
-            max_active: int | None = None) -> dict[str, float]:
+def run_one(
+    scenario_name: str, seed: int, filter_name: str, options: dict | None = None, max_active: int | None = None
+) -> dict[str, float]:
     """One run with unknown correspondences; the audit's counts and timings.
 
     ``max_active`` overrides the SEIF's and ESEIF's ``k`` (8 by default).
@@ -134,7 +135,6 @@ def main(argv: list[str] | None = None) -> int:
              f"{'ms/scan':>7s} {'max ms':>7s}"  # fmt: skip
     print(header)
     print("-" * len(header))
-    totals: dict[str, dict[str, float]] = {f: {} for f in filters}
 
     def line(label: str, name: str, rows: list[dict[str, float]]) -> None:
         s = {k: sum(r[k] for r in rows) for k in rows[0]}

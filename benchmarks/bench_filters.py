@@ -444,8 +444,10 @@ def fmt_us(us: float) -> str:
 
 def print_table(results: list[Result], sizes: list[int]) -> list[str]:
     notes = []
-    print("| filter | n | mean / step | median / step | timed steps | landmarks seen / step | memory_bytes "
-          "| memory / landmark | build (total) | final pose error (filter's 1σ) | local map error |")
+    print(
+        "| filter | n | mean / step | median / step | timed steps | landmarks seen / step | memory_bytes "
+        "| memory / landmark | build (total) | final pose error (filter's 1σ) | local map error |"
+    )
     print("|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
     for name in FILTER_ORDER:
         for n in sizes:
@@ -484,20 +486,38 @@ def summary(results: list[Result], sizes: list[int]) -> dict:
 
 
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0], formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(
+        description=__doc__.split("\n\n")[0], formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     parser.add_argument("--sizes", default="50,200,1000,5000", help="comma-separated map sizes n (default %(default)s)")
     parser.add_argument("--quick", action="store_true", help="smoke test: sizes 50,200 only")
     parser.add_argument("--json", metavar="OUT.json", help="also write all results (per-step times included) here")
     parser.add_argument("--filters", default="SEIF,EIF,EKF", help="comma-separated subset of SEIF,EIF,EKF")
-    parser.add_argument("--blas-threads", type=int, default=1,
-                        help="OpenBLAS/OpenMP threads, set before numpy loads (default %(default)s; see the module docstring)")
-    parser.add_argument("--budget", type=float, default=480.0, help="wall seconds per (filter, n), build + window (default %(default)s)")
-    parser.add_argument("--window", type=int, default=1000, help="most timed steps per (filter, n) (default %(default)s)")
-    parser.add_argument("--window-seconds", type=float, default=20.0, help="stop timing after this much step time (default %(default)s)")
+    parser.add_argument(
+        "--blas-threads",
+        type=int,
+        default=1,
+        help="OpenBLAS/OpenMP threads, set before numpy loads (default %(default)s; see the module docstring)",
+    )
+    parser.add_argument(
+        "--budget", type=float, default=480.0, help="wall seconds per (filter, n), build + window (default %(default)s)"
+    )
+    parser.add_argument(
+        "--window", type=int, default=1000, help="most timed steps per (filter, n) (default %(default)s)"
+    )
+    parser.add_argument(
+        "--window-seconds", type=float, default=20.0, help="stop timing after this much step time (default %(default)s)"
+    )
     parser.add_argument("--min-window", type=int, default=5, help="fewest timed steps (default %(default)s)")
-    parser.add_argument("--spacing", type=float, default=2.0, help="landmark spacing along the corridor, m (default %(default)s)")
-    parser.add_argument("--visible", type=float, default=8.0, help="landmarks in sensor range per step (default %(default)s)")
-    parser.add_argument("--stride", type=float, default=4.0, help="robot travel per step, in landmark spacings (default %(default)s)")
+    parser.add_argument(
+        "--spacing", type=float, default=2.0, help="landmark spacing along the corridor, m (default %(default)s)"
+    )
+    parser.add_argument(
+        "--visible", type=float, default=8.0, help="landmarks in sensor range per step (default %(default)s)"
+    )
+    parser.add_argument(
+        "--stride", type=float, default=4.0, help="robot travel per step, in landmark spacings (default %(default)s)"
+    )
     parser.add_argument("--seed", type=int, default=0)
     args = parser.parse_args(argv)
 
@@ -547,7 +567,9 @@ def main(argv=None) -> int:
             t0 = time.perf_counter()
             result = run_one(name, corridor, args, args.budget)
             if result.status != "ok":
-                last = max((r for r in results if r.filter == name and r.status == "ok"), key=lambda r: r.n, default=None)
+                last = max(
+                    (r for r in results if r.filter == name and r.status == "ok"), key=lambda r: r.n, default=None
+                )
                 if last is not None:
                     result.reason += f"; last measured: n={last.n}, {fmt_us(last.mean_us)} per step"
             results.append(result)
@@ -581,7 +603,9 @@ def main(argv=None) -> int:
     if bad:
         print(f"CHECK FAILED: local map error over {100 * LOCAL_MAP_TOLERANCE:.0f} cm: {', '.join(bad)}")
     else:
-        print(f"Check: every filter that ran keeps its local map within {100 * LOCAL_MAP_TOLERANCE:.0f} cm of the truth.")
+        print(
+            f"Check: every filter that ran keeps its local map within {100 * LOCAL_MAP_TOLERANCE:.0f} cm of the truth."
+        )
     if "seif_ratio_mean" in stats:
         lo, hi = stats["seif_ratio_sizes"]
         verdict = "meets" if stats["seif_ratio_mean"] <= 1.3 else "MISSES"
@@ -598,18 +622,29 @@ def main(argv=None) -> int:
             )
     print("\nMemory per landmark (memory_bytes / n; capacity doubling included):")
     for name in FILTER_ORDER:
-        cells = [f"n={r.n}: {fmt_bytes(r.memory_bytes / r.n)}" for r in results if r.filter == name and r.status == "ok"]
+        cells = [
+            f"n={r.n}: {fmt_bytes(r.memory_bytes / r.n)}" for r in results if r.filter == name and r.status == "ok"
+        ]
         if cells:
             print(f"- {name}: " + ", ".join(cells))
     wall = time.perf_counter() - wall_start
-    print(f"\nwall time: {wall:.1f} s; load average at the end: {_load_average()} (at the start: {env['load_average']})")
+    print(
+        f"\nwall time: {wall:.1f} s; load average at the end: {_load_average()} (at the start: {env['load_average']})"
+    )
 
     if args.json:
         payload = {
             "environment": env,
-            "config": {**vars(args), "sizes": sizes, "filters": filters, "max_range": max_range,
-                       "motion_alphas": MOTION_ALPHAS, "sigma_range": SIGMA_RANGE,
-                       "sigma_bearing": SIGMA_BEARING, "dt": DT},  # fmt: skip
+            "config": {
+                **vars(args),
+                "sizes": sizes,
+                "filters": filters,
+                "max_range": max_range,
+                "motion_alphas": MOTION_ALPHAS,
+                "sigma_range": SIGMA_RANGE,
+                "sigma_bearing": SIGMA_BEARING,
+                "dt": DT,
+            },  # fmt: skip
             "results": [asdict(r) for r in results],
             "summary": stats,
             "notes": notes,

@@ -161,37 +161,47 @@ def main() -> None:
     rows = []
     for label in labels:
         averaged = nees[label].mean(axis=0)  # run-averaged NEES per step
-        rows.append({
-            "filter": label,
-            "anees": float(nees[label].mean()),
-            "anees_last_quarter": float(nees[label][:, -max(1, args.steps // 4):].mean()),
-            "in_band": float(np.mean((averaged >= low) & (averaged <= high))),
-            "above_band": float(np.mean(averaged > high)),
-            "final_position_rmse": float(np.sqrt(final_pos_sq[label].mean())),
-            "final_heading_rmse_deg": float(np.degrees(np.sqrt(final_heading_sq[label].mean()))),
-            "map_rmse": float(np.sqrt(np.concatenate(map_sq[label]).mean())),
-            "map_rmse_exact_mean": float(np.sqrt(np.concatenate(map_exact_sq[label]).mean())),
-            "sigma_ratio": float(np.mean(np.sqrt(position_var[label] / position_var["EKF"]))),
-            "ms_per_step": float(1e3 * np.median(np.concatenate(step_seconds[label]))),
-        })
+        rows.append(
+            {
+                "filter": label,
+                "anees": float(nees[label].mean()),
+                "anees_last_quarter": float(nees[label][:, -max(1, args.steps // 4) :].mean()),
+                "in_band": float(np.mean((averaged >= low) & (averaged <= high))),
+                "above_band": float(np.mean(averaged > high)),
+                "final_position_rmse": float(np.sqrt(final_pos_sq[label].mean())),
+                "final_heading_rmse_deg": float(np.degrees(np.sqrt(final_heading_sq[label].mean()))),
+                "map_rmse": float(np.sqrt(np.concatenate(map_sq[label]).mean())),
+                "map_rmse_exact_mean": float(np.sqrt(np.concatenate(map_exact_sq[label]).mean())),
+                "sigma_ratio": float(np.mean(np.sqrt(position_var[label] / position_var["EKF"]))),
+                "ms_per_step": float(1e3 * np.median(np.concatenate(step_seconds[label]))),
+            }
+        )
     wall = time.perf_counter() - start_wall
 
     print(f"# Pose NEES consistency: {args.runs} runs x {args.steps} steps, seed {args.seed}")
     print()
-    print(f"Loop of radius {RADIUS:g} m driven 1.2 times, {args.landmarks} landmarks per run, sensor range "
-          f"{args.max_range:g} m ({np.mean(seen):.1f} seen per step on average), motion noise "
-          f"{args.noise_scale:g} x default alphas. Python {platform.python_version()}, "
-          f"numpy {np.__version__}, scipy {scipy.__version__}, {platform.machine()}.")
-    print(f"95% band of the run-averaged NEES per step (chi2, {3 * args.runs} dof, / {args.runs}): "
-          f"[{low:.3f}, {high:.3f}]; a consistent filter has ANEES 3 and ~95% of steps in the band.")
+    print(
+        f"Loop of radius {RADIUS:g} m driven 1.2 times, {args.landmarks} landmarks per run, sensor range "
+        f"{args.max_range:g} m ({np.mean(seen):.1f} seen per step on average), motion noise "
+        f"{args.noise_scale:g} x default alphas. Python {platform.python_version()}, "
+        f"numpy {np.__version__}, scipy {scipy.__version__}, {platform.machine()}."
+    )
+    print(
+        f"95% band of the run-averaged NEES per step (chi2, {3 * args.runs} dof, / {args.runs}): "
+        f"[{low:.3f}, {high:.3f}]; a consistent filter has ANEES 3 and ~95% of steps in the band."
+    )
     print()
-    print("| filter | ANEES | ANEES last 25% | in band | above band | final pos RMSE (m) | final heading RMSE (deg) "
-          "| map RMSE (m) | map RMSE, exact mean (m) | sigma ratio vs EKF | ms/step |")
+    print(
+        "| filter | ANEES | ANEES last 25% | in band | above band | final pos RMSE (m) | final heading RMSE (deg) "
+        "| map RMSE (m) | map RMSE, exact mean (m) | sigma ratio vs EKF | ms/step |"
+    )
     print("|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
     for row in rows:
-        print(f"| {row['filter']} | {row['anees']:.2f} | {row['anees_last_quarter']:.2f} | {100 * row['in_band']:.0f}% | {100 * row['above_band']:.0f}% "
-              f"| {row['final_position_rmse']:.3f} | {row['final_heading_rmse_deg']:.2f} | {row['map_rmse']:.3f} "
-              f"| {row['map_rmse_exact_mean']:.3f} | {row['sigma_ratio']:.2f} | {row['ms_per_step']:.3f} |")
+        print(
+            f"| {row['filter']} | {row['anees']:.2f} | {row['anees_last_quarter']:.2f} | {100 * row['in_band']:.0f}% | {100 * row['above_band']:.0f}% "
+            f"| {row['final_position_rmse']:.3f} | {row['final_heading_rmse_deg']:.2f} | {row['map_rmse']:.3f} "
+            f"| {row['map_rmse_exact_mean']:.3f} | {row['sigma_ratio']:.2f} | {row['ms_per_step']:.3f} |"
+        )
     print()
     print(f"SEIF(max_active=None, exact) vs EKF: max |pose difference| over all runs and steps = {max_pose_gap:.2e}")
     print(f"Wall time {wall:.0f} s.")

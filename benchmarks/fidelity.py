@@ -169,14 +169,14 @@ def markdown_table(rows: list[dict], runs: int, steps: int) -> str:
             f"| {row['anees']:.2f} | {lag} | {row['us_per_step']:.0f} | {relocations} |"
         )
     lines.append("")
-    lines.append(
-        f"{runs} runs; ANEES band (95%, independent steps assumed, so only a guide): [{low:.2f}, {high:.2f}]"
-    )
+    lines.append(f"{runs} runs; ANEES band (95%, independent steps assumed, so only a guide): [{low:.2f}, {high:.2f}]")
     return "\n".join(lines)
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0], formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(
+        description=__doc__.split("\n\n")[0], formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     parser.add_argument("--seeds", type=int, default=3, help="runs per scenario (seeds 0..N-1)")
     parser.add_argument("--ks", type=int, nargs="+", default=[4, 8, 16], help="active-set bounds k")
     parser.add_argument("--scenarios", nargs="+", default=list(FIDELITY_SCENARIOS), choices=list(FIDELITY_SCENARIOS))

@@ -96,12 +96,18 @@ def plot_map(ax, run, seif, results) -> None:
     pose = seif.pose
     active = np.array([seif.landmarks[seif.landmark_index(i)] for i in seif.active_landmarks]).reshape(-1, 2)
     for k, point in enumerate(active):
-        ax.plot([pose[0], point[0]], [pose[1], point[1]], color="tab:red", lw=1.0, label="active links" if k == 0 else None)
+        ax.plot(
+            [pose[0], point[0]], [pose[1], point[1]], color="tab:red", lw=1.0, label="active links" if k == 0 else None
+        )
     ax.scatter(*active.T, s=60, facecolors="none", edgecolors="tab:red", lw=1.2, zorder=4)
-    ax.plot(*pose[:2], marker=(3, 0, math.degrees(pose[2]) - 90), color="tab:red", ms=11, ls="none", label="final SEIF pose")
+    ax.plot(
+        *pose[:2], marker=(3, 0, math.degrees(pose[2]) - 90), color="tab:red", ms=11, ls="none", label="final SEIF pose"
+    )
     ax.plot(*run.true_poses[0, :2], "ks", ms=5, label="start")
-    ax.set_title(f"Map: SEIF (max_active={seif.max_active}) and EKF; 95% ellipses of SEIF landmarks\n"
-                 f"red: the {len(active)} active landmarks (all seen in the last step are kept active)")
+    ax.set_title(
+        f"Map: SEIF (max_active={seif.max_active}) and EKF; 95% ellipses of SEIF landmarks\n"
+        f"red: the {len(active)} active landmarks (all seen in the last step are kept active)"
+    )
     ax.set_aspect("equal", adjustable="datalim")  # fill the panel: the limits give way, not the box
     ax.set_xlabel("x (m)")
     ax.set_ylabel("y (m)")
@@ -140,8 +146,15 @@ def plot_sparsity(ax, seif, eif) -> None:
     ax.add_patch(Rectangle((-0.5, -0.5), size, 3, color="tab:red", alpha=0.15, lw=0))
     ax.add_patch(Rectangle((-0.5, -0.5), 3, size, color="tab:red", alpha=0.15, lw=0))
     ax.add_patch(Rectangle((-0.5, -0.5), 3, 3, fill=False, edgecolor="tab:red", lw=1.5))
-    ax.annotate("robot rows/columns (shaded):\nnon-zero only at the active landmarks", xy=(0.55 * size, 2), xytext=(0.71 * size, 0.24 * size),
-                color="tab:red", fontsize=8, ha="center", arrowprops={"arrowstyle": "->", "color": "tab:red"})
+    ax.annotate(
+        "robot rows/columns (shaded):\nnon-zero only at the active landmarks",
+        xy=(0.55 * size, 2),
+        xytext=(0.71 * size, 0.24 * size),
+        color="tab:red",
+        fontsize=8,
+        ha="center",
+        arrowprops={"arrowstyle": "->", "color": "tab:red"},
+    )
     ax.set_title(
         f"SEIF information matrix ({size}x{size})\nnnz = {omega.nnz}, fill = {100 * fill:.0f}%"
         f"  (exact EIF: {100 * eif_fill:.0f}%)"
@@ -172,21 +185,29 @@ def main() -> None:
     results = {name: run_filter(filt, run) for name, filt in filters.items()}
     seif, ekf = filters["SEIF"], filters["EKF"]
 
-    print(f"Loop of radius {RADIUS:g} m, {run.steps} steps, {len(landmarks)} landmarks "
-          f"({seif.num_landmarks} mapped), ~{run.measurement_counts.mean():.1f} seen per step, seed {args.seed}")
+    print(
+        f"Loop of radius {RADIUS:g} m, {run.steps} steps, {len(landmarks)} landmarks "
+        f"({seif.num_landmarks} mapped), ~{run.measurement_counts.mean():.1f} seen per step, seed {args.seed}"
+    )
     print(f"{'filter':<22} {'pose err (m)':>12} {'heading (deg)':>13} {'map RMSE (m)':>12} {'ms/step':>8}")
     for name in ("SEIF", "EKF"):
         position, heading = pose_error(filters[name].pose, run.true_poses[-1])
         label = f"SEIF(max_active={args.max_active})" if name == "SEIF" else name
-        print(f"{label:<22} {position:12.3f} {heading:13.2f} {map_rmse(filters[name], landmarks):12.3f} "
-              f"{1e3 * np.median(results[name]['step_seconds']):8.3f}")
+        print(
+            f"{label:<22} {position:12.3f} {heading:13.2f} {map_rmse(filters[name], landmarks):12.3f} "
+            f"{1e3 * np.median(results[name]['step_seconds']):8.3f}"
+        )
     omega = seif.information_matrix
     print(f"SEIF active landmarks ({len(seif.active_landmarks)}): {sorted(seif.active_landmarks.tolist())}")
-    print(f"SEIF Omega: {omega.shape[0]}x{omega.shape[0]}, nnz {omega.nnz} ({100 * omega.nnz / omega.shape[0] ** 2:.1f}%); "
-          f"EIF Omega nnz {filters['EIF'].information_matrix.nnz}")
+    print(
+        f"SEIF Omega: {omega.shape[0]}x{omega.shape[0]}, nnz {omega.nnz} ({100 * omega.nnz / omega.shape[0] ** 2:.1f}%); "
+        f"EIF Omega nnz {filters['EIF'].information_matrix.nnz}"
+    )
     exact = seif.exact_mean()[3:].reshape(-1, 2) - landmarks[seif.landmark_ids]
-    print(f"SEIF map RMSE with the exact mean (Omega^-1 xi) instead of the amortized one: "
-          f"{np.sqrt(np.mean(np.sum(exact**2, axis=1))):.3f} m")
+    print(
+        f"SEIF map RMSE with the exact mean (Omega^-1 xi) instead of the amortized one: "
+        f"{np.sqrt(np.mean(np.sum(exact**2, axis=1))):.3f} m"
+    )
     print("(ms/step: median wall time of one predict + update)")
 
     fig, axes = plt.subplots(1, 3, figsize=(14, 6), layout="constrained", gridspec_kw={"width_ratios": [1.3, 1, 1]})

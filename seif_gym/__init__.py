@@ -64,7 +64,12 @@ VARIANTS: dict[str, tuple[dict, int]] = {
 
 for _env_id, (_kwargs, _steps) in VARIANTS.items():
     if _env_id not in registry:
-        register(id=_env_id, entry_point=ENTRY_POINT, vector_entry_point=VECTOR_ENTRY_POINT, kwargs=_kwargs,
-                 max_episode_steps=_steps)
+        register(
+            id=_env_id,
+            entry_point=ENTRY_POINT,
+            vector_entry_point=VECTOR_ENTRY_POINT,
+            kwargs=_kwargs,
+            max_episode_steps=_steps,
+        )
 
 __all__ = ["VARIANTS", "VERSIONS", "LATEST_VERSION", "ENTRY_POINT", "VECTOR_ENTRY_POINT", "__version__"]

@@ -48,7 +48,7 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass, fields
 from pathlib import Path
 from types import MappingProxyType
-from typing import Any
+from typing import Any, cast
 
 import gymnasium as gym
 import numpy as np
@@ -56,8 +56,8 @@ from numpy.typing import NDArray
 
 from seif_gym.envs.explore import SeifExploreEnv
 from seif_gym.metrics import filter_map_error  # the env's E_t: identical bits
-from seif_gym.slam.association import AssociationAudit, make_associator
 from seif_gym.slam import FILTERS, RangeBearingSensor, SlamFilter, VelocityMotionModel
+from seif_gym.slam.association import AssociationAudit, make_associator
 
 __all__ = ["Episode", "EpisodeRecorder", "ReplayResult", "replay", "episode_models"]
 
@@ -99,7 +99,7 @@ def _json_config(config: Mapping[str, Any]) -> str:
 
 
 def _plain(value):
-    """numpy scalars and arrays as Python numbers and lists, for ``json.dumps``."""
+    """Numpy scalars and arrays as Python numbers and lists, for ``json.dumps``."""
     if isinstance(value, (np.generic, np.ndarray)):
         return value.tolist()
     raise TypeError(f"{type(value).__name__} is not JSON serialisable")
@@ -378,7 +378,8 @@ class EpisodeRecorder(gym.Wrapper, gym.utils.RecordConstructorArgs):
     # -- gymnasium API ---------------------------------------------------------------
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
         observation, info = self.env.reset(seed=seed, options=options)
-        base = self.env.unwrapped
+        base = cast(SeifExploreEnv, self.env.unwrapped)  # checked by the constructor
+        assert base.world is not None  # just reset
         self._buffers = {
             "config": base.config,
             "seed": seed,
@@ -523,7 +524,9 @@ def _default_options(factory, config: Mapping[str, Any], options: dict[str, Any]
     An episode recorded by seif_gym 0.1 has no ``mean_recovery`` in its
     config: it ran Thrun's round-robin recovery, which is what it replays with.
     """
-    accepted = getattr(factory, "OPTIONS", None) if isinstance(factory, type) and issubclass(factory, SlamFilter) else None
+    accepted = (
+        getattr(factory, "OPTIONS", None) if isinstance(factory, type) and issubclass(factory, SlamFilter) else None
+    )
     if accepted is None:
         return options
     added = dict(options)
@@ -600,6 +603,7 @@ def replay(
     """
     if not isinstance(episode, Episode):
         raise TypeError(f"episode must be an Episode, got {type(episode).__name__}")
+    factory: Callable[..., SlamFilter]
     if filter_factory is None:
         if not isinstance(filter, str) or filter not in FILTERS:
             raise ValueError(f"filter must be one of {tuple(FILTERS)}, got {filter!r}")
@@ -624,7 +628,11 @@ def replay(
     if association == "ml":
         missing = [name for name in ASSOCIATION_NEEDS if not hasattr(filt, name)]
         if missing:
-            asked = "association='ml'" if explicit else "association=None (the episode was recorded with data_association='ml')"
+            asked = (
+                "association='ml'"
+                if explicit
+                else "association=None (the episode was recorded with data_association='ml')"
+            )
             raise ValueError(
                 f"{asked} needs a filter with {', '.join(ASSOCIATION_NEEDS)}; {type(filt).__name__} lacks "
                 f"{', '.join(missing)}. Pass association='known' to feed it the true ids instead"
@@ -648,6 +656,7 @@ def replay(
         if associator is None:
             filt.update(ranges, bearings, true_ids)
         else:
+            assert audit is not None  # made together with the associator
             audit.record(associator, associator.update(filt, ranges, bearings), true_ids)
 
     update(*measurement(0))

@@ -1,9 +1,9 @@
-"""Filter robustness harness: recorded episodes replayed through every filter, and scored.
+r"""Filter robustness harness: recorded episodes replayed through every filter, and scored.
 
 .. code-block:: bash
 
     # record with policies, then score (the agents package: it owns the policies)
-    python -m agents.robustness --policies random,frontier,revisit,ppo=runs/ppo/model.zip \\
+    python -m agents.robustness --policies random,frontier,revisit,ppo=runs/ppo/model.zip \
         --layouts uniform,loop --seeds 5 --seed 0 --steps 300 --out eval/robustness
     # score episodes recorded before (this module: nothing but the library)
     python -m seif_gym.evaluate --episodes eval/robustness/episodes --filters seif-k8,eseif,ekf --out eval/replayed
@@ -243,7 +243,9 @@ class FilterSpec:
         if self.factory is not None:
             return self.factory
         if self.filter not in FILTERS:
-            raise ValueError(f"filter {self.label!r} needs {self.filter!r}, which is not in seif_gym.slam.FILTERS {tuple(FILTERS)}")
+            raise ValueError(
+                f"filter {self.label!r} needs {self.filter!r}, which is not in seif_gym.slam.FILTERS {tuple(FILTERS)}"
+            )
         return FILTERS[self.filter]
 
 
@@ -285,7 +287,9 @@ def parse_filter(spec: str | FilterSpec) -> FilterSpec:
 
 
 # -- metrics of one replay (the definitions: seif_gym.metrics) --------------------------------------
-def score_replay(episode: Episode, spec: str | FilterSpec, *, nees_every: int = 1) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
+def score_replay(
+    episode: Episode, spec: str | FilterSpec, *, nees_every: int = 1
+) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
     """Replay ``episode`` through ``spec`` and score it.
 
     Returns
@@ -342,7 +346,9 @@ def score_replay(episode: Episode, spec: str | FilterSpec, *, nees_every: int = 
     map_total = float(np.nansum(curves["map_nees"]))
     map_count = float(np.sum(curves["map_count"]))
     mapped_rmse = curves["map_rmse"][np.isfinite(curves["map_rmse"])]
-    final_relative = curves["relative_nees"][-1] / curves["relative_count"][-1] if curves["relative_count"][-1] else math.nan
+    final_relative = (
+        curves["relative_nees"][-1] / curves["relative_count"][-1] if curves["relative_count"][-1] else math.nan
+    )
     row = {
         "steps": steps,
         "landmarks_total": len(truth_landmarks),
@@ -609,7 +615,9 @@ def _sigma_ratio(rows, series, indices) -> float:
     return float(np.mean(values)) if len(values) else math.nan
 
 
-def _aggregate(rows: Sequence[Mapping[str, Any]], series: Sequence[Mapping[str, np.ndarray]], indices: Sequence[int]) -> dict[str, float]:
+def _aggregate(
+    rows: Sequence[Mapping[str, Any]], series: Sequence[Mapping[str, np.ndarray]], indices: Sequence[int]
+) -> dict[str, float]:
     chosen = [rows[i] for i in indices]
     curves = [series[i] for i in indices]
     length = max(len(c["pose_nees"]) for c in curves)
@@ -634,7 +642,9 @@ def _aggregate(rows: Sequence[Mapping[str, Any]], series: Sequence[Mapping[str, 
         "median_nees_pose": float(np.median(pose_steps)) if len(pose_steps) else math.nan,
         "pose_in_band": in_band,
         "pose_above_band": above,
-        "anees_relative": sum(float(np.nansum(c["relative_nees"])) for c in curves) / rel_count if rel_count else math.nan,
+        "anees_relative": sum(float(np.nansum(c["relative_nees"])) for c in curves) / rel_count
+        if rel_count
+        else math.nan,
         "relative_in_band": rel_in,
         "relative_above_band": rel_above,
         "anees_map": sum(float(np.nansum(c["map_nees"])) for c in curves) / map_count if map_count else math.nan,
@@ -706,7 +716,9 @@ def summary_tables(rows: Sequence[Mapping[str, Any]], series: Sequence[Mapping[s
 # -- output -----------------------------------------------------------------------------------------
 def _csv_value(value: Any) -> Any:
     if isinstance(value, float):
-        return repr(value) if math.isfinite(value) else ("nan" if math.isnan(value) else ("inf" if value > 0 else "-inf"))
+        return (
+            repr(value) if math.isfinite(value) else ("nan" if math.isnan(value) else ("inf" if value > 0 else "-inf"))
+        )
     return value
 
 
@@ -734,7 +746,7 @@ def write_outputs(
         for row in rows:
             writer.writerow({column: _csv_value(row[column]) for column in RESULT_COLUMNS})
     length = max(len(c["pose_nees"]) for c in series)
-    arrays: dict[str, np.ndarray] = {
+    arrays: dict[str, Any] = {
         "policy": np.array([row["policy"] for row in rows], dtype=str),
         "layout": np.array([row["layout"] for row in rows], dtype=str),
         "seed": np.array([row["seed"] for row in rows], dtype=np.int64),
@@ -770,7 +782,9 @@ def _plots(rows, series, paths) -> None:
         return [series[i] for i in by_pair.get((policy, name), [])]
 
     def panels(nrows: int = 1):
-        fig, axes = plt.subplots(nrows, len(policies), figsize=(width, 3.6 * nrows), dpi=110, squeeze=False, sharex=True)
+        fig, axes = plt.subplots(
+            nrows, len(policies), figsize=(width, 3.6 * nrows), dpi=110, squeeze=False, sharex=True
+        )
         return fig, axes
 
     def finish(fig, axes, path):
@@ -883,7 +897,9 @@ def _parser() -> argparse.ArgumentParser:
     )  # fmt: skip
     parser.add_argument("--episodes", nargs="+", metavar="PATH",
                         help="saved episodes (.npz) or folders of them, e.g. eval/robustness/episodes")  # fmt: skip
-    parser.add_argument("--filters", default=None, help=f"comma-separated filters (default {','.join(default_filters())})")
+    parser.add_argument(
+        "--filters", default=None, help=f"comma-separated filters (default {','.join(default_filters())})"
+    )
     parser.add_argument("--nees-every", type=int, default=1, help="steps between full-covariance NEES (default 1)")
     parser.add_argument("--out", default="eval/replayed",
                         help="output folder (default eval/replayed; not the recording run's, whose files it would replace)")  # fmt: skip
@@ -898,7 +914,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Command-line entry point; returns the exit status."""
     parser = _parser()
     args = parser.parse_args(argv)
-    moved = [option for option in _RECORDING_OPTIONS if getattr(args, f"moved_{option[2:].replace('-', '_')}") is not None]
+    moved = [
+        option for option in _RECORDING_OPTIONS if getattr(args, f"moved_{option[2:].replace('-', '_')}") is not None
+    ]
     if moved:
         parser.error(f"{', '.join(moved)}: recording episodes with policies moved to `python -m agents.robustness` "
                      "(the same options); this command scores saved episodes (--episodes PATH ...)")  # fmt: skip

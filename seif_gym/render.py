@@ -190,8 +190,14 @@ class Renderer:
         self._spy_title = spy.set_title("", fontsize=8, pad=3)
         self._spy_title.set_animated(True)
         self._spy_caption = spy.text(
-            0.5, -0.05, "red: robot rows/cols", transform=spy.transAxes,
-            ha="center", va="top", fontsize=7, color="#555555",
+            0.5,
+            -0.05,
+            "red: robot rows/cols",
+            transform=spy.transAxes,
+            ha="center",
+            va="top",
+            fontsize=7,
+            color="#555555",
         )
         self.spy_ax = spy
 
@@ -211,7 +217,13 @@ class Renderer:
             Patch(facecolor="none", edgecolor=_TRUE, linewidth=1.8, label="true robot"),
             Patch(facecolor=_ESTIMATE, edgecolor="#0b3d7a", alpha=0.85, label="estimated robot"),
             Line2D(
-                [], [], color=_ACTIVE, linewidth=1.6, marker="o", markerfacecolor="none", markersize=7,
+                [],
+                [],
+                color=_ACTIVE,
+                linewidth=1.6,
+                marker="o",
+                markerfacecolor="none",
+                markersize=7,
                 label="active link",
             ),
             Patch(facecolor=to_rgba(_SENSOR, 0.3), edgecolor=to_rgba(_SENSOR, 0.9), label="sensor footprint"),
@@ -232,7 +244,7 @@ class Renderer:
         moving = self._moving
         # sensor footprint at the true pose, clipped to the arena
         if self.fov >= 2.0 * math.pi - 1e-9:
-            self._footprint = Circle((0.0, 0.0), self.max_range)
+            self._footprint: Circle | Wedge = Circle((0.0, 0.0), self.max_range)
         else:
             self._footprint = Wedge((0.0, 0.0), self.max_range, 0.0, math.degrees(self.fov))
         self._footprint.set(facecolor=to_rgba(_SENSOR, 0.22), edgecolor=to_rgba(_SENSOR, 0.9), linewidth=1.0, zorder=1)
@@ -287,7 +299,7 @@ class Renderer:
         true_pose = np.asarray(world.pose, dtype=np.float64)
         est_pose = np.asarray(filt.pose, dtype=np.float64)
 
-        self._footprint.set_center(true_pose[:2])
+        self._footprint.set_center((float(true_pose[0]), float(true_pose[1])))
         if isinstance(self._footprint, Wedge):
             heading, half_fov = math.degrees(true_pose[2]), math.degrees(0.5 * self.fov)
             self._footprint.set_theta1(heading - half_fov)
@@ -317,7 +329,7 @@ class Renderer:
         self._rings.set_data(active[:, 0], active[:, 1])
 
         (width,), (height,), (angle,) = ellipse_parameters(pose_cov[:2, :2][None])
-        self._pose_ellipse.set_center(est_pose[:2])
+        self._pose_ellipse.set_center((float(est_pose[0]), float(est_pose[1])))
         self._pose_ellipse.set_width(width)
         self._pose_ellipse.set_height(height)
         self._pose_ellipse.set_angle(angle)
@@ -421,4 +433,3 @@ class Renderer:
             self._window = None
             self._window_image = None
         self._backgrounds.clear()
-

@@ -254,7 +254,11 @@ class BatchedWorld:
                  buffer: int = 4096) -> None:  # fmt: skip
         if isinstance(num_worlds, bool) or not isinstance(num_worlds, (int, np.integer)) or num_worlds < 1:
             raise ValueError(f"num_worlds must be a positive int, got {num_worlds!r}")
-        if isinstance(buffer, bool) or not isinstance(buffer, (int, np.integer)) or buffer < 2 * config.num_landmarks + 3:
+        if (
+            isinstance(buffer, bool)
+            or not isinstance(buffer, (int, np.integer))
+            or buffer < 2 * config.num_landmarks + 3
+        ):
             raise ValueError(f"buffer must be an int of at least {2 * config.num_landmarks + 3}, got {buffer!r}")
         self.config, self.motion, self.sensor = config, motion, sensor
         n, m = int(num_worlds), config.num_landmarks

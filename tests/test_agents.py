@@ -24,8 +24,12 @@ import pytest
 os.environ.setdefault("MPLBACKEND", "Agg")
 
 import seif_gym  # noqa: E402  (registers the environments)
-from agents import BASELINES, Agent, make_agent  # noqa: E402
-from agents import evaluate  # noqa: E402
+from agents import (  # noqa: E402
+    BASELINES,
+    Agent,
+    evaluate,  # noqa: E402
+    make_agent,
+)
 from agents.baselines import GEOMETRY_READS, INFO_GAIN_READS, Geometry, landmark_rows, read_belief_map  # noqa: E402
 from seif_gym.observation import ObservationDecoder  # noqa: E402
 
@@ -59,7 +63,7 @@ class GuardedEnv:
         object.__setattr__(self, "reads", set())
 
     @property
-    def unwrapped(self) -> "GuardedEnv":
+    def unwrapped(self) -> GuardedEnv:
         return self
 
     def __getattr__(self, name: str):
@@ -179,7 +183,7 @@ def test_the_guard_catches_a_cheating_agent() -> None:
     with pytest.raises(GroundTruthAccess):
         run_short(env, Cheater(GuardedEnv(env)))
     with pytest.raises(GroundTruthAccess):
-        GuardedEnv(env).trajectory
+        _ = GuardedEnv(env).trajectory
 
 
 # -- predict: single and batched ------------------------------------------------------------------
@@ -486,7 +490,9 @@ def test_cli_with_an_sb3_model_and_vecnormalize(tmp_path, capsys) -> None:
     (tmp_path / "model").mkdir()
     model.save(tmp_path / "model" / "policy.zip")
     venv.save(tmp_path / "model" / "vecnormalize.pkl")
-    agent = evaluate.build_agent(str(tmp_path / "model" / "policy.zip"), gym.make("SeifExplore-v0"), "SeifExplore-v0", {}, 0)
+    agent = evaluate.build_agent(
+        str(tmp_path / "model" / "policy.zip"), gym.make("SeifExplore-v0"), "SeifExplore-v0", {}, 0
+    )
     assert agent.vecnormalize is not None and not agent.vecnormalize.training
     out = tmp_path / "out"
     status = evaluate.main([

@@ -24,8 +24,12 @@ def _assert_same(batch: BatchedSEIF, e: int, filt: SEIF, step: int) -> None:
     np.testing.assert_array_equal(batch.neighbour_count[e, :n], store.neighbour_count[:n], err_msg=where)
     for i in range(n):
         count = store.neighbour_count[i]
-        np.testing.assert_array_equal(batch.neighbour_index[e, i, :count], store.neighbour_index[i, :count], err_msg=where)
-        np.testing.assert_array_equal(batch.neighbour_info[e, i, :count], store.neighbour_info[i, :count], err_msg=where)
+        np.testing.assert_array_equal(
+            batch.neighbour_index[e, i, :count], store.neighbour_index[i, :count], err_msg=where
+        )
+        np.testing.assert_array_equal(
+            batch.neighbour_info[e, i, :count], store.neighbour_info[i, :count], err_msg=where
+        )
     np.testing.assert_array_equal(batch.active_landmarks(e), filt.active_landmarks, err_msg=where)
     np.testing.assert_array_equal(batch.landmark_ids(e), filt.landmark_ids, err_msg=where)
     np.testing.assert_array_equal(batch.last_observed[e, :n], filt._last_observed[:n], err_msg=where)
@@ -81,7 +85,9 @@ def test_batched_seif_checks_its_inputs_before_any_filter_moves():
     with pytest.raises(ValueError, match="distinct"):
         batch.update(np.ones((2, 2)), np.zeros((2, 2)), np.array([[3, 3], [0, 1]]), np.array([2, 2]))
     with pytest.raises(ValueError, match="ranges"):
-        batch.update(np.array([[1.0, -1.0], [1.0, 1.0]]), np.zeros((2, 2)), np.array([[0, 1], [0, 1]]), np.array([2, 2]))
+        batch.update(
+            np.array([[1.0, -1.0], [1.0, 1.0]]), np.zeros((2, 2)), np.array([[0, 1], [0, 1]]), np.array([2, 2])
+        )
     with pytest.raises(ValueError, match="counts"):
         batch.update(np.ones((2, 2)), np.zeros((2, 2)), np.array([[0, 1], [0, 1]]), np.array([3, 0]))
     np.testing.assert_array_equal(batch.mean, before)

@@ -121,13 +121,16 @@ class TestRecovery:
             assert found.bearing_bias == pytest.approx(true.bearing_bias, abs=0.005)
             # what a filter uses: the bias relative to the corrected heading, which is tighter
             assert found.bearing_bias - found.heading_offset == pytest.approx(
-                true.bearing_bias - true.heading_offset, abs=0.0015)
+                true.bearing_bias - true.heading_offset, abs=0.0015
+            )
             assert found.range_bias == pytest.approx(0.0, abs=0.01)
 
     def test_sensor_noise_and_latency(self, calibrated):
         assert calibrated.sigma_bearing == pytest.approx(0.009, rel=0.06)
         ranges = np.array([1.5, 3.0, 5.0])
-        np.testing.assert_allclose(calibrated.sensor().range_sigma(ranges), TRUTH.sensor().range_sigma(ranges), rtol=0.1)
+        np.testing.assert_allclose(
+            calibrated.sensor().range_sigma(ranges), TRUTH.sensor().range_sigma(ranges), rtol=0.1
+        )
         assert calibrated.sensor_latency == pytest.approx(0.035, abs=0.01)
 
     def test_motion_noise(self, simulated, calibrated):
@@ -192,8 +195,24 @@ class TestFiles:
         folder = mc.write_dataset(tmp_path / "MRCLAM_Sim", simulated)
         assert mrclam.load(folder, 1).odometry.time.shape == simulated[1].odometry.time.shape
         out = tmp_path / "cal.json"
-        assert mrclam.main(["calibrate", "--data", str(folder), "--robots", "1", "2", "--out", str(out), "--quiet",
-                            "--horizon", "5"]) == 0
+        assert (
+            mrclam.main(
+                [
+                    "calibrate",
+                    "--data",
+                    str(folder),
+                    "--robots",
+                    "1",
+                    "2",
+                    "--out",
+                    str(out),
+                    "--quiet",
+                    "--horizon",
+                    "5",
+                ]
+            )
+            == 0
+        )
         found = mc.Calibration.load(out)
         # the text files round their values: the estimates agree closely, not bit for bit
         assert found.correction.turn_scale == pytest.approx(calibrated.correction.turn_scale, rel=1e-3)

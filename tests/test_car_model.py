@@ -15,7 +15,7 @@ import math
 import numpy as np
 import pytest
 
-from seif_gym.slam import EKF, EIF, SEIF, RangeBearingSensor
+from seif_gym.slam import EIF, EKF, SEIF, RangeBearingSensor
 from seif_gym.slam.car_model import AckermannLaserModel
 from seif_gym.slam.models import wrap_angle
 

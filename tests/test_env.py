@@ -26,7 +26,6 @@ import pytest
 # rendering in the checkers must not need a display
 os.environ.setdefault("MPLBACKEND", "Agg")
 
-import seif_gym  # noqa: E402  (registers the environments)
 from seif_gym import ENTRY_POINT, VARIANTS  # noqa: E402
 from seif_gym.envs.explore import Measurements  # noqa: E402
 from seif_gym.observation import BeliefEncoder  # noqa: E402
@@ -518,7 +517,7 @@ def test_step_before_reset_raises():
     env = make()
     with pytest.raises(RuntimeError, match="reset"):
         env.unwrapped.step(np.zeros(2, dtype=np.float32))
-    with pytest.raises(Exception):
+    with pytest.raises(gym.error.ResetNeeded):
         env.step(np.zeros(2, dtype=np.float32))
     env.close()
 
@@ -682,8 +681,13 @@ def test_coverage_resolution_sets_the_swept_grid():
 @pytest.mark.parametrize(
     "kwargs",
     [
-        {"max_active": None}, {"filter": "ekf", "max_active": None}, {"fov": 2 * math.pi}, {"wall_penalty": 0.0},
-        {"num_landmarks": 1}, {"coverage_resolution": 3.0}, {"map_size": 36},
+        {"max_active": None},
+        {"filter": "ekf", "max_active": None},
+        {"fov": 2 * math.pi},
+        {"wall_penalty": 0.0},
+        {"num_landmarks": 1},
+        {"coverage_resolution": 3.0},
+        {"map_size": 36},
     ],  # fmt: skip
     ids=repr,
 )
@@ -833,7 +837,9 @@ def check_info(info: dict, env: gym.Env, *, previous_mapped: int = 0) -> None:
     assert info["pose_nees"] == pytest.approx(float(error @ np.linalg.solve(filt.pose_covariance, error)), rel=1e-9)
     blanket = unwrapped.encoder.pose_covariance
     assert info["pose_nees_blanket"] == pytest.approx(float(error @ np.linalg.solve(blanket, error)), rel=1e-9)
-    assert info["pose_error"] == pytest.approx(math.hypot(*(info["true_pose"][:2] - info["pose_estimate"][:2])), abs=1e-12)
+    assert info["pose_error"] == pytest.approx(
+        math.hypot(*(info["true_pose"][:2] - info["pose_estimate"][:2])), abs=1e-12
+    )
     assert 0.0 <= info["map_error"] <= unwrapped.reward_config.d_cap
     assert info["map_error"] == pytest.approx(unwrapped.map_error(), abs=1e-15)
     for key in ("landmarks_mapped", "landmarks_total"):
@@ -1201,7 +1207,9 @@ def test_100k_random_steps_no_nan_no_memory_growth():
     elapsed = time.perf_counter() - started
     env.close()
     growth = rss_after - rss_before
-    print(f"\n100k steps: {elapsed:.1f} s, {episodes} episodes, {walls} wall contacts, RSS growth {growth / 2**20:.2f} MiB")
+    print(
+        f"\n100k steps: {elapsed:.1f} s, {episodes} episodes, {walls} wall contacts, RSS growth {growth / 2**20:.2f} MiB"
+    )
     assert episodes >= (total - warm_up) // 400 - 1
     assert growth < 8 * 2**20, f"RSS grew by {growth / 2**20:.1f} MiB"
 

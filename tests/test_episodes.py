@@ -5,7 +5,7 @@ from __future__ import annotations
 import dataclasses
 import doctest
 import inspect
-from functools import lru_cache
+from functools import cache
 
 import gymnasium as gym
 import numpy as np
@@ -48,7 +48,7 @@ class Recording:
     final_landmarks: np.ndarray
 
 
-@lru_cache(maxsize=None)
+@cache
 def record(env_id: str, kwargs: tuple = (), seed: int = 11, steps: int = STEPS) -> Recording:
     """One episode of ``steps`` random actions (from a seeded action space), recorded."""
     env = EpisodeRecorder(gym.make(env_id, max_episode_steps=steps, **dict(kwargs)))
@@ -156,7 +156,7 @@ def test_episode_is_read_only_and_validated():
 def test_recorder_saves_each_finished_episode(tmp_path):
     env = EpisodeRecorder(gym.make("SeifExplore-v0", max_episode_steps=4), directory=tmp_path / "runs")
     with pytest.raises(RuntimeError):
-        env.episode
+        _ = env.episode
     env.action_space.seed(0)
     episodes = []
     for seed in (5, None):

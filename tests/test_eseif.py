@@ -31,10 +31,10 @@ from seif_gym.slam import (
     SEIF,
     RangeBearingSensor,
     VelocityMotionModel,
+    _kernels,
     make_filter,
     wrap_angle,
 )
-from seif_gym.slam import _kernels
 from seif_gym.slam.eseif import (
     RELOCALIZATION_RCOND,
     marginalize_robot,
@@ -98,7 +98,9 @@ def sparse_run():
     rng = np.random.default_rng(0)
     motion, sensor = VelocityMotionModel(), RangeBearingSensor(max_range=2.0)
     landmarks = ring_landmarks(16, 4.5, 7.5, rng)
-    run = simulate_run(motion, sensor, landmarks, loop_controls(150, DT, 6.0), DT, loop_start_pose(6.0), noise_free=True)
+    run = simulate_run(
+        motion, sensor, landmarks, loop_controls(150, DT, 6.0), DT, loop_start_pose(6.0), noise_free=True
+    )
     return motion, sensor, run
 
 
@@ -298,9 +300,9 @@ def test_each_relocalization_matches_the_full_matrix_equations(ring_loop_run):
 
         def add_factors(omega, xi, lin, selected):
             omega, xi = omega.copy(), xi.copy()
-            for r, b, i in zip(run.ranges[t][selected], run.bearings[t][selected], scan_ids[selected]):
-                rows = np.r_[0:3, 3 + 2 * order[int(i)] : 5 + 2 * order[int(i)]]
-                H = np.zeros((2, size))
+            for r, b, i in zip(run.ranges[t][selected], run.bearings[t][selected], scan_ids[selected]):  # noqa: B023 (called within this iteration)
+                rows = np.r_[0:3, 3 + 2 * order[int(i)] : 5 + 2 * order[int(i)]]  # noqa: B023 (called within this iteration)
+                H = np.zeros((2, size))  # noqa: B023 (called within this iteration)
                 H[:, rows] = sensor.jacobian(lin[:3], lin[rows[3:]])[0]
                 z_hat = sensor.predict(lin[:3], lin[rows[3:]])[0]
                 innovation = np.array([r - z_hat[0], wrap_angle(float(b - z_hat[1]))])

@@ -46,7 +46,9 @@ def map_rmse() -> dict[str, float]:
                     filters[f"SEIF {recovery} k={k}"] = SEIF(
                         motion, sensor, run.initial_pose, max_active=k, mean_recovery=recovery
                     )
-            filters["SEIF amortized k=8"] = SEIF(motion, sensor, run.initial_pose, max_active=8, mean_recovery="amortized")
+            filters["SEIF amortized k=8"] = SEIF(
+                motion, sensor, run.initial_pose, max_active=8, mean_recovery="amortized"
+            )
             filters["ESEIF k=8"] = ESEIF(motion, sensor, run.initial_pose, max_active=8)
             for label, filt in filters.items():
                 totals.setdefault(label, []).append(final_map_rmse(filt, run))

@@ -247,16 +247,16 @@ class TestMotionJacobians:
         expected = np.array([[1.0, 0.0, -dy], [0.0, 1.0, dx], [0.0, 0.0, 1.0]])
         np.testing.assert_allclose(G, expected, rtol=0, atol=1e-15)
 
-    @pytest.mark.parametrize(
-        "pose,control,dt", MODERATE_CASES, ids=[_case_id(c) for c in MODERATE_CASES]
-    )
+    @pytest.mark.parametrize("pose,control,dt", MODERATE_CASES, ids=[_case_id(c) for c in MODERATE_CASES])
     def test_jacobian_state_equals_book_delta(self, motion, pose, control, dt):
         theta, (v, w) = pose[2], control
         r = v / w
         expected = np.eye(3)
         expected[0, 2] = -r * math.cos(theta) + r * math.cos(theta + w * dt)
         expected[1, 2] = -r * math.sin(theta) + r * math.sin(theta + w * dt)
-        np.testing.assert_allclose(motion.jacobian_state(pose, control, dt), expected, rtol=0, atol=1e-12 * max(1, abs(r)))
+        np.testing.assert_allclose(
+            motion.jacobian_state(pose, control, dt), expected, rtol=0, atol=1e-12 * max(1, abs(r))
+        )
 
     @pytest.mark.parametrize("pose,control,dt", ZERO_OMEGA_CASES, ids=[_case_id(c) for c in ZERO_OMEGA_CASES])
     def test_jacobians_at_zero_omega_are_the_limits(self, motion, pose, control, dt):
@@ -291,7 +291,9 @@ class TestMotionJacobians:
         np.testing.assert_allclose(
             motion.jacobian_control(pose, lo, dt), motion.jacobian_control(pose, hi, dt), rtol=0, atol=tol_v
         )
-        np.testing.assert_allclose(motion.displacement(pose, lo, dt), motion.displacement(pose, hi, dt), rtol=0, atol=1e-15)
+        np.testing.assert_allclose(
+            motion.displacement(pose, lo, dt), motion.displacement(pose, hi, dt), rtol=0, atol=1e-15
+        )
 
 
 # ---------------------------------------------------------------------------
@@ -311,7 +313,9 @@ class TestMotionDisplacement:
     def test_straight_line_at_zero_omega(self, motion, theta, v, dt):
         for w in (0.0, -0.0):
             got = motion.displacement([3.0, -1.0, theta], [v, w], dt)
-            np.testing.assert_allclose(got, [v * dt * math.cos(theta), v * dt * math.sin(theta), 0.0], rtol=1e-15, atol=1e-300)
+            np.testing.assert_allclose(
+                got, [v * dt * math.cos(theta), v * dt * math.sin(theta), 0.0], rtol=1e-15, atol=1e-300
+            )
 
     @pytest.mark.parametrize("w", [1e-9, -1e-9, 1e-6, -1e-6, 1e-3, -1e-3])
     @pytest.mark.parametrize("theta", [0.0, 1.1, -2.7])
@@ -331,7 +335,9 @@ class TestMotionDisplacement:
         if abs(w) >= 1e-6:
             straight = np.array([v * dt * math.cos(theta), v * dt * math.sin(theta), w * dt])
             arc = 0.5 * abs(v * w) * dt * dt
-            assert np.max(np.abs(got - straight)) == pytest.approx(arc * max(abs(math.sin(theta)), abs(math.cos(theta))), rel=1e-2)
+            assert np.max(np.abs(got - straight)) == pytest.approx(
+                arc * max(abs(math.sin(theta)), abs(math.cos(theta))), rel=1e-2
+            )
 
     @motion_case
     def test_predict_is_pose_plus_displacement_wrapped(self, motion, pose, control, dt):
@@ -346,7 +352,14 @@ class TestMotionDisplacement:
 
     @pytest.mark.parametrize(
         "theta,w,dt",
-        [(3.0, 1.0, 0.5), (-3.0, -1.0, 0.5), (math.pi - 1e-9, 1e-6, 1.0), (0.0, math.pi, 1.0), (0.1, 20.0, 1.0), (-math.pi, -1e-9, 1.0)],
+        [
+            (3.0, 1.0, 0.5),
+            (-3.0, -1.0, 0.5),
+            (math.pi - 1e-9, 1e-6, 1.0),
+            (0.0, math.pi, 1.0),
+            (0.1, 20.0, 1.0),
+            (-math.pi, -1e-9, 1.0),
+        ],
     )
     def test_predict_wraps_heading(self, motion, theta, w, dt):
         pred = motion.predict([0.0, 0.0, theta], [1.0, w], dt)
@@ -384,7 +397,9 @@ class TestMotionLinearize:
         M = np.diag([a1 * v * v + a2 * w * w, a3 * v * v + a4 * w * w])
         np.testing.assert_allclose(motion.control_covariance(control), M, rtol=1e-15, atol=0)
         V = motion.jacobian_control(pose, control, dt)
-        expected = V @ M @ V.T + np.diag([0.0, 0.0, (a5 * v * v + a6 * w * w) * dt * dt]) + motion.noise_floor * np.eye(3)
+        expected = (
+            V @ M @ V.T + np.diag([0.0, 0.0, (a5 * v * v + a6 * w * w) * dt * dt]) + motion.noise_floor * np.eye(3)
+        )
         np.testing.assert_allclose(R, expected, rtol=1e-12, atol=1e-15 * np.max(np.abs(expected)))
 
     @motion_case
@@ -409,7 +424,9 @@ class TestMotionLinearize:
         np.testing.assert_allclose(R, floor * np.eye(3), rtol=1e-15, atol=0)
         np.linalg.cholesky(R)
         # sampling at rest does not move the robot (all control variances vanish)
-        np.testing.assert_array_equal(model.sample(pose, [0.0, 0.0], 0.5, np.random.default_rng(3)), model.predict(pose, [0.0, 0.0], 0.5))
+        np.testing.assert_array_equal(
+            model.sample(pose, [0.0, 0.0], 0.5, np.random.default_rng(3)), model.predict(pose, [0.0, 0.0], 0.5)
+        )
 
     def test_zero_alphas_gives_floor_only(self):
         model = VelocityMotionModel(alphas=(0.0,) * 6, noise_floor=1e-6)
@@ -609,7 +626,8 @@ class TestMotionValidation:
             VelocityMotionModel(alphas=alphas)
 
     @pytest.mark.parametrize(
-        "floor,error", [(0.0, ValueError), (-1e-9, ValueError), (math.nan, ValueError), (math.inf, ValueError), ("1e-9", TypeError)]
+        "floor,error",
+        [(0.0, ValueError), (-1e-9, ValueError), (math.nan, ValueError), (math.inf, ValueError), ("1e-9", TypeError)],
     )
     def test_bad_noise_floor(self, floor, error):
         with pytest.raises(error, match=r"\bnoise_floor\b"):
@@ -677,7 +695,9 @@ class TestSensorPredictJacobian:
         z = sensor.predict(pose, lms)
         assert z.shape == (4, 2)
         np.testing.assert_allclose(z[:, 0], [1.0, 3.0, 4.0, 3.0], rtol=1e-15)
-        np.testing.assert_allclose(z[:, 1], wrap_angle(np.array([0.0, math.pi / 2, math.pi, -math.pi / 2]) - 0.5), atol=1e-15)
+        np.testing.assert_allclose(
+            z[:, 1], wrap_angle(np.array([0.0, math.pi / 2, math.pi, -math.pi / 2]) - 0.5), atol=1e-15
+        )
 
     def test_directly_behind_is_minus_pi(self, sensor):
         z = sensor.predict([0.0, 0.0, 0.0], [[-2.0, 0.0]])
@@ -926,7 +946,15 @@ class TestSensorValidation:
     @pytest.mark.parametrize("name", ["sigma_range", "sigma_bearing", "max_range", "fov"])
     @pytest.mark.parametrize(
         "value,error",
-        [(0.0, ValueError), (-0.1, ValueError), (math.nan, ValueError), (math.inf, ValueError), ("1", TypeError), (None, TypeError), (True, TypeError)],
+        [
+            (0.0, ValueError),
+            (-0.1, ValueError),
+            (math.nan, ValueError),
+            (math.inf, ValueError),
+            ("1", TypeError),
+            (None, TypeError),
+            (True, TypeError),
+        ],
     )
     def test_bad_constructor_argument(self, name, value, error):
         with pytest.raises(error, match=rf"\b{name}\b"):
@@ -947,7 +975,13 @@ class TestSensorValidation:
     @pytest.mark.parametrize("method", ["predict", "jacobian", "visible"])
     @pytest.mark.parametrize(
         "landmarks,error",
-        [([1.0, 2.0, 3.0], ValueError), ([[1.0, 2.0, 3.0]], ValueError), ([[math.nan, 1.0]], ValueError), ("ab", TypeError), (None, (TypeError, ValueError))],
+        [
+            ([1.0, 2.0, 3.0], ValueError),
+            ([[1.0, 2.0, 3.0]], ValueError),
+            ([[math.nan, 1.0]], ValueError),
+            ("ab", TypeError),
+            (None, (TypeError, ValueError)),
+        ],
     )
     def test_bad_landmarks(self, sensor, method, landmarks, error):
         with pytest.raises(error, match=r"\blandmarks\b"):

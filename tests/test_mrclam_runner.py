@@ -80,8 +80,27 @@ def test_command_line_writes_the_documented_outputs(simulated, tmp_path):
         assert data["robots"].tolist() == [1] and str(data["filter"]) == "ekf"
     assert out.with_suffix(".png").is_file()
     out_all = tmp_path / "all.npz"
-    assert mrclam.main(["--data", str(folder), "--robot", "all", "--filter", "seif", "--out", str(out_all),
-                        "--calibration", str(calibration), "--association", "ml", "--quiet", "--no-plot"]) == 0
+    assert (
+        mrclam.main(
+            [
+                "--data",
+                str(folder),
+                "--robot",
+                "all",
+                "--filter",
+                "seif",
+                "--out",
+                str(out_all),
+                "--calibration",
+                str(calibration),
+                "--association",
+                "ml",
+                "--quiet",
+                "--no-plot",
+            ]
+        )
+        == 0
+    )
     with np.load(out_all) as data:
         assert data["robots"].tolist() == [1, 2]  # the robots the folder has
         assert data["r2_pose"].shape[1] == 3

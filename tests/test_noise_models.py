@@ -159,7 +159,9 @@ class TestPerSecondMotion:
         assert gap[10] < gap[1] / 50.0 + 1e-12
         # Thrun's model, noise held over the step: 100 steps give ~100 times less variance than one
         thrun = VelocityMotionModel(alphas=(0.05, 0.0, 0.02, 0.01, 0.0, 0.0), noise_floor=1e-12)
-        ratio = self._propagate(thrun, pose, control, 1.0, 1)[2, 2] / self._propagate(thrun, pose, control, 1.0, 100)[2, 2]
+        ratio = (
+            self._propagate(thrun, pose, control, 1.0, 1)[2, 2] / self._propagate(thrun, pose, control, 1.0, 100)[2, 2]
+        )
         assert ratio == pytest.approx(100.0, rel=1e-4)
 
     @pytest.mark.parametrize("control", [(0.09, 0.3), (0.5, -0.8)])
@@ -239,7 +241,9 @@ class TestPerSecondMotion:
 # ---------------------------------------------------------------------------
 # CommandCorrection, CorrectedMotionModel
 # ---------------------------------------------------------------------------
-CORRECTION = CommandCorrection(speed_scale=0.95, turn_slowdown=1.2, speed_offset=0.001, turn_scale=0.93, turn_offset=-0.002)
+CORRECTION = CommandCorrection(
+    speed_scale=0.95, turn_slowdown=1.2, speed_offset=0.001, turn_scale=0.93, turn_offset=-0.002
+)
 
 
 class TestCommandCorrection:
@@ -351,6 +355,7 @@ class TestRangeDependentSensor:
         np.testing.assert_array_equal(ranged.predict(pose, landmarks), plain.predict(pose, landmarks))
         H_all = ranged.jacobian(pose, landmarks)
         for k, landmark in enumerate(landmarks):
+
             def h(state):
                 return ranged.predict(state[:3], state[3:][None])[0]
 

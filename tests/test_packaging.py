@@ -12,7 +12,18 @@ ROOT = Path(__file__).resolve().parent.parent
 
 def test_wheel_ships_policies_configs_and_declares_its_imports(tmp_path):
     subprocess.run(
-        [sys.executable, "-m", "pip", "wheel", str(ROOT), "--no-deps", "--no-build-isolation", "-q", "-w", str(tmp_path)],
+        [
+            sys.executable,
+            "-m",
+            "pip",
+            "wheel",
+            str(ROOT),
+            "--no-deps",
+            "--no-build-isolation",
+            "-q",
+            "-w",
+            str(tmp_path),
+        ],
         check=True,
         capture_output=True,
     )
@@ -24,6 +35,8 @@ def test_wheel_ships_policies_configs_and_declares_its_imports(tmp_path):
         assert f"agents/hyperparams/{config.name}" in names
     for module in (ROOT / "seif_gym").rglob("*.py"):
         assert module.relative_to(ROOT).as_posix() in names
+    # PEP 561 markers: type checkers read the packages' own annotations
+    assert {"seif_gym/py.typed", "agents/py.typed"} <= names
     metadata = zipfile.ZipFile(wheel).read(next(n for n in names if n.endswith(".dist-info/METADATA"))).decode()
     requirements = [line for line in metadata.splitlines() if line.startswith("Requires-Dist:")]
     for package in ("gymnasium", "numpy", "scipy", "numba", "matplotlib", "stable-baselines3", "pyyaml", "pillow"):

@@ -81,7 +81,12 @@ def test_replayed_filters_see_exactly_the_recorded_data(tmp_path):
     logs = {name: [] for name in ("seif-k2", "seif-exact", "eif", "ekf")}
     specs = [
         FilterSpec("seif-k2", "seif", {"max_active": 2}, _logging(FILTERS["seif"], logs["seif-k2"])),
-        FilterSpec("seif-exact", "seif", {"max_active": 8, "mean_recovery": "exact"}, _logging(FILTERS["seif"], logs["seif-exact"])),
+        FilterSpec(
+            "seif-exact",
+            "seif",
+            {"max_active": 8, "mean_recovery": "exact"},
+            _logging(FILTERS["seif"], logs["seif-exact"]),
+        ),
         FilterSpec("eif", "eif", {}, _logging(FILTERS["eif"], logs["eif"])),
         FilterSpec("ekf", "ekf", {}, _logging(FILTERS["ekf"], logs["ekf"])),
     ]

@@ -7,14 +7,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from seif_gym.slam import RangeBearingSensor, VelocityMotionModel
-from seif_gym.slam import _kernels
+from seif_gym.slam import RangeBearingSensor, VelocityMotionModel, _kernels
 from seif_gym.slam.information import InformationStore
 from seif_gym.slam.seif import (
     SEIF,
+    RecoveryQueue,
     measurement_update,
     motion_update,
-    RecoveryQueue,
     recover_mean_amortized,
     recover_mean_wavefront,
     sparsify,
@@ -149,7 +148,12 @@ def test_wavefront_kernel_equals_reference(ring_loop_run):
     for _ in range(6):
         recover_mean_wavefront(reference_store, reference_queue, filt._active, seeds, 16, 1.5, 1e-4)
         log_size = (len(seeds) + len(filt._active) + 16) * (2 + compiled_store.degree) + 1
-        undo = (np.empty(log_size, np.int8), np.empty(log_size, np.int64), np.empty((log_size, 2)), np.zeros(1, np.int64))
+        undo = (
+            np.empty(log_size, np.int8),
+            np.empty(log_size, np.int64),
+            np.empty((log_size, 2)),
+            np.zeros(1, np.int64),
+        )
         _kernels.recover_mean_wavefront(
             *store_arrays(compiled_store), compiled_store.mean, compiled_store.block_position, filt._active, seeds,
             compiled_queue.items, compiled_queue.queued, compiled_queue.state, 16, 1.5, 1e-4, *undo,
@@ -182,7 +186,7 @@ def test_wavefront_descends_and_converges(ring_loop_run):
     """Each recovery lowers 1/2 mu^T Omega mu - xi^T mu (block SOR on an SPD matrix) and the mean approaches Omega^-1 xi."""
     motion, sensor, run = ring_loop_run
     filt = feed(SEIF(motion, sensor, run.initial_pose, max_active=6), run, steps=300)
-    omega, xi = filt.information_matrix, filt.information_vector
+    omega = filt.information_matrix
     exact = filt.exact_mean()
     filt._store.mean[3 : filt.state_dim] += np.random.default_rng(0).normal(0.0, 0.3, filt.state_dim - 3)
 
@@ -256,7 +260,10 @@ def test_one_sparsification_step(ring_loop_run, implementation):
     assert len(after_active) == 3 and after_active < before_active
 
     omega_tilde, xi_tilde = dense(filt), filt.information_vector
-    rows = lambda ids: np.concatenate([[3 + 2 * filt.landmark_index(i), 4 + 2 * filt.landmark_index(i)] for i in ids])
+
+    def rows(ids):
+        return np.concatenate([[3 + 2 * filt.landmark_index(i), 4 + 2 * filt.landmark_index(i)] for i in ids])
+
     x = np.arange(3)
     m0 = rows(sorted(before_active - after_active))
     m_minus = rows(sorted(set(filt.landmark_ids.tolist()) - before_active))

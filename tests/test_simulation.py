@@ -39,7 +39,12 @@ def test_noise_free_loop_stays_on_the_circle_and_returns():
     motion, sensor = VelocityMotionModel(), RangeBearingSensor(max_range=4.0)
     landmarks = ring_landmarks(12, 2.0, 4.0, np.random.default_rng(1))
     run = simulate_run(
-        motion, sensor, landmarks, loop_controls(steps, 0.1, radius, turns=1.0), 0.1, loop_start_pose(radius),
+        motion,
+        sensor,
+        landmarks,
+        loop_controls(steps, 0.1, radius, turns=1.0),
+        0.1,
+        loop_start_pose(radius),
         noise_free=True,
     )
     np.testing.assert_allclose(np.linalg.norm(run.true_poses[:, :2], axis=1), radius, rtol=1e-12)

@@ -14,8 +14,7 @@ import copy
 import numpy as np
 import pytest
 
-from seif_gym.slam import ESEIF, SEIF
-from seif_gym.slam import _kernels
+from seif_gym.slam import ESEIF, SEIF, _kernels
 from seif_gym.slam import eseif as eseif_module
 from seif_gym.slam import seif as seif_module
 

@@ -26,7 +26,9 @@ def _assert_equal(a, b, where: str) -> None:
         for field in Measurements._fields:
             np.testing.assert_array_equal(getattr(a, field), getattr(b, field), err_msg=f"{where}.{field}")
     elif isinstance(a, np.ndarray):
-        assert isinstance(b, np.ndarray) and a.dtype == b.dtype and a.shape == b.shape, f"{where}: {a.dtype}{a.shape} vs {getattr(b, 'dtype', type(b))}{getattr(b, 'shape', '')}"
+        assert isinstance(b, np.ndarray) and a.dtype == b.dtype and a.shape == b.shape, (
+            f"{where}: {a.dtype}{a.shape} vs {getattr(b, 'dtype', type(b))}{getattr(b, 'shape', '')}"
+        )
         np.testing.assert_array_equal(a, b, err_msg=where)
     else:
         assert a == b, f"{where}: {a!r} vs {b!r}"
@@ -96,7 +98,9 @@ def test_vector_env_renders_sub_env_0_as_the_single_env_would():
     single.close()
 
 
-@pytest.mark.parametrize("env_id", ["SeifExploreLoop-v1", "SeifExploreClustered-v1", "SeifExploreLarge-v1", "SeifExplore-v0"])
+@pytest.mark.parametrize(
+    "env_id", ["SeifExploreLoop-v1", "SeifExploreClustered-v1", "SeifExploreLarge-v1", "SeifExplore-v0"]
+)
 def test_every_variant_vectorises_equal_to_single_envs(env_id):
     """gym.make_vec(id) is the native env (compiled for -v1, a SyncVectorEnv inside for -v0's amortized recovery)."""
     limit, steps = 15, 35

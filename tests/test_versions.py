@@ -50,7 +50,9 @@ def episode_digest(env: gym.Env, policy: str, steps: int) -> str:
     return digest.hexdigest()[:16]
 
 
-@pytest.mark.parametrize("env_id, kwargs, policy, expected", V0_DIGESTS, ids=[f"{d[0]}-{d[2]}-{d[1]}" for d in V0_DIGESTS])
+@pytest.mark.parametrize(
+    "env_id, kwargs, policy, expected", V0_DIGESTS, ids=[f"{d[0]}-{d[2]}-{d[1]}" for d in V0_DIGESTS]
+)
 def test_v0_reproduces_seif_gym_0_1(env_id, kwargs, policy, expected):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", DeprecationWarning)  # gymnasium: "-v0 is out of date"

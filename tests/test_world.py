@@ -17,7 +17,9 @@ NOISE_FREE = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
 def noise_free_world(pose, landmarks=((0.0, 0.0),), arena_size=20.0, fov=math.pi, max_range=5.0) -> World:
     config = WorldConfig(arena_size=arena_size, num_landmarks=len(landmarks))
     sensor = RangeBearingSensor(sigma_range=1e-9, sigma_bearing=1e-9, max_range=max_range, fov=fov)
-    return World(config, VelocityMotionModel(alphas=NOISE_FREE), sensor, np.array(landmarks, float), np.array(pose, float))
+    return World(
+        config, VelocityMotionModel(alphas=NOISE_FREE), sensor, np.array(landmarks, float), np.array(pose, float)
+    )
 
 
 # == WorldConfig and make_landmarks ===================================================================
@@ -208,7 +210,9 @@ def test_nearest_returns_the_k_nearest_in_order():
     pose = np.array([0.5, -0.5, 0.0])
     expected = np.argsort(np.hypot(*(landmarks - pose[:2]).T), kind="stable")[:4]
     np.testing.assert_array_equal(encoder.nearest(pose, landmarks), expected)
-    np.testing.assert_array_equal(encoder.nearest(pose, landmarks[:2]), np.argsort(np.hypot(*(landmarks[:2] - pose[:2]).T)))
+    np.testing.assert_array_equal(
+        encoder.nearest(pose, landmarks[:2]), np.argsort(np.hypot(*(landmarks[:2] - pose[:2]).T))
+    )
     assert len(encoder.nearest(pose, np.empty((0, 2)))) == 0
 
 
@@ -292,7 +296,7 @@ def test_batched_world_equals_worlds_bit_for_bit():
         batch.reset(e, landmarks, start, *(np.random.default_rng(e), np.random.default_rng(50 + e)))
     actions = np.random.default_rng(7)
     walls = 0
-    for t in range(600):
+    for _ in range(600):
         controls = actions.uniform([-0.2, -1.0], [1.0, 1.0], size=(n, 2))
         executed, wall = batch.step(controls, 0.25)
         ranges, bearings, ids, counts = batch.measure()

@@ -389,8 +389,9 @@ def _load_robot(folder: Path, robot: int, barcodes: IntArray, landmarks: Landmar
 
     return MrclamLog(
         robot=robot,
-        odometry=Odometry(frozen(odo[:, 0], np.float64), frozen(odo[:, 1], np.float64),
-                          frozen(odo[:, 2], np.float64)),  # fmt: skip
+        odometry=Odometry(
+            frozen(odo[:, 0], np.float64), frozen(odo[:, 1], np.float64), frozen(odo[:, 2], np.float64)
+        ),  # fmt: skip
         measurements=_measurements(meas, subject, is_landmark),
         robot_sightings=_measurements(meas, subject, is_robot),
         ground_truth=GroundTruth(*(frozen(gt[:, k], np.float64) for k in range(4))),

@@ -227,8 +227,10 @@ class Calibration:
                 range_bounds=tuple(float(b) for b in sensor["range_bounds"]),  # type: ignore[arg-type]
                 sigma_bearing=float(sensor["sigma_bearing"]),
                 sensor_latency=float(data["sensor_latency"]),
-                robots={int(r): RobotCalibration(**{k: float(v) for k, v in c.items()})
-                        for r, c in data.get("robots", {}).items()},  # fmt: skip
+                robots={
+                    int(r): RobotCalibration(**{k: float(v) for k, v in c.items()})
+                    for r, c in data.get("robots", {}).items()
+                },  # fmt: skip
                 diagnostics=dict(data.get("diagnostics", {})),
                 source=dict(data.get("source", {})),
             )
@@ -592,7 +594,9 @@ def calibrate(
         duration = np.concatenate([p[3][:, 0] for p in parts_h])[:, None]
         rates[f"{length:g}s"] = {
             name: float(fit_variance_regression(e - np.median(e), duration)[0])
-            for name, e in zip(("forward", "lateral", "turn"), (np.concatenate([p[k] for p in parts_h]) for k in range(3)))
+            for name, e in zip(
+                ("forward", "lateral", "turn"), (np.concatenate([p[k] for p in parts_h]) for k in range(3))
+            )
         }
 
     say("sensor latency")
@@ -616,7 +620,13 @@ def calibrate(
         range_parts.append(range_error - range_bias)
         bearing_parts.append(wrap_angle(bearing_error - bearing_bias))
         range_values.append(ranges)
-        per_robot[t.robot] = (range_error - range_bias, wrap_angle(bearing_error - bearing_bias), ranges, times, subjects)
+        per_robot[t.robot] = (
+            range_error - range_bias,
+            wrap_angle(bearing_error - bearing_bias),
+            ranges,
+            times,
+            subjects,
+        )
     if not range_parts:
         raise ValueError("no landmark readings with ground truth: cannot calibrate the sensor")
     range_errors, bearing_errors = np.concatenate(range_parts), np.concatenate(bearing_parts)
@@ -663,8 +673,11 @@ def calibrate(
         sensor_latency=sensor_latency,
         robots=robots,
         diagnostics=diagnostics,
-        source={"robots": [t.robot for t in tracks], "fit_offsets": bool(fit_offsets),
-                "dataset": str(items[0].path)},  # fmt: skip
+        source={
+            "robots": [t.robot for t in tracks],
+            "fit_offsets": bool(fit_offsets),
+            "dataset": str(items[0].path),
+        },  # fmt: skip
     )
 
 
@@ -832,10 +845,18 @@ def write_dataset(folder, logs: Mapping[int, mrclam.MrclamLog]) -> Path:
                header="Subject #    x [m]    y [m]    x std-dev [m]    y std-dev [m]")  # fmt: skip
     for robot, log in logs.items():
         odo, gt, m = log.odometry, log.ground_truth, log.measurements
-        np.savetxt(folder / f"Robot{robot}_Odometry.dat", np.column_stack([odo.time, odo.v, odo.omega]),
-                   fmt=["%.3f", "%.6f", "%.6f"], header="Time [s]    Forward velocity [m/s]    Angular velocity[rad/s]")
-        np.savetxt(folder / f"Robot{robot}_Groundtruth.dat", np.column_stack([gt.time, gt.x, gt.y, gt.theta]),
-                   fmt=["%.3f", "%.7f", "%.7f", "%.7f"], header="Time [s]    x [m]    y [m]    Orientation [rad]")
+        np.savetxt(
+            folder / f"Robot{robot}_Odometry.dat",
+            np.column_stack([odo.time, odo.v, odo.omega]),
+            fmt=["%.3f", "%.6f", "%.6f"],
+            header="Time [s]    Forward velocity [m/s]    Angular velocity[rad/s]",
+        )
+        np.savetxt(
+            folder / f"Robot{robot}_Groundtruth.dat",
+            np.column_stack([gt.time, gt.x, gt.y, gt.theta]),
+            fmt=["%.3f", "%.7f", "%.7f", "%.7f"],
+            header="Time [s]    x [m]    y [m]    Orientation [rad]",
+        )
         readings = np.column_stack([m.time, m.barcode, m.range, m.bearing])
         sightings = np.column_stack([log.robot_sightings.time, log.robot_sightings.barcode,
                                      log.robot_sightings.range, log.robot_sightings.bearing])  # fmt: skip
@@ -853,15 +874,19 @@ def summary(calibration: Calibration) -> str:
     """A short human-readable table of a calibration."""
     c = calibration.correction
     lines = [
-        (f"command correction  v' = {c.speed_scale:.4f} v max(0, 1 - {c.turn_slowdown:.3f}|w|) + {c.speed_offset:+.4f}, "
-         f"w' = {c.turn_scale:.4f} w + {c.turn_offset:+.5f}"),
+        (
+            f"command correction  v' = {c.speed_scale:.4f} v max(0, 1 - {c.turn_slowdown:.3f}|w|) + {c.speed_offset:+.4f}, "
+            f"w' = {c.turn_scale:.4f} w + {c.turn_offset:+.5f}"
+        ),
         f"command latency     {calibration.command_latency:.3f} s",
         f"motion noise (per second, fitted at {calibration.horizon:g} s; constant, per v^2, per w^2)",
         f"  forward [m^2/s]   {calibration.forward[0]:.3e}  {calibration.forward[1]:.3e}  {calibration.forward[2]:.3e}",
         f"  turn  [rad^2/s]   {calibration.turn[0]:.3e}  {calibration.turn[1]:.3e}  {calibration.turn[2]:.3e}",
         f"  lateral [m^2/s]   {calibration.lateral[0]:.3e}  {calibration.lateral[1]:.3e}  {calibration.lateral[2]:.3e}",
-        (f"range noise         sigma_r = clip({calibration.range_slope:.4f} r, {calibration.range_bounds[0]:.4f}, "
-         f"{calibration.range_bounds[1]:.4f}) m"),
+        (
+            f"range noise         sigma_r = clip({calibration.range_slope:.4f} r, {calibration.range_bounds[0]:.4f}, "
+            f"{calibration.range_bounds[1]:.4f}) m"
+        ),
         f"bearing noise       sigma_phi = {calibration.sigma_bearing:.4f} rad",
         f"sensor latency      {calibration.sensor_latency:.3f} s",
         "robot  heading offset [mrad]  bearing bias [mrad]  range bias [m]",

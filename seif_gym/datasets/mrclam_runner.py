@@ -283,7 +283,9 @@ def run_robot(
                     rows = rows[fresh]
                 _, first = np.unique(subjects_all[rows], return_index=True)  # one reading per landmark and frame
                 rows = rows[np.sort(first)]
-            elif now - last_frame < config.min_interval:  # unknown landmarks: whole frames at most once per min_interval
+            elif (
+                now - last_frame < config.min_interval
+            ):  # unknown landmarks: whole frames at most once per min_interval
                 thinned += len(rows)
                 rows = rows[:0]
             if len(rows):
@@ -373,7 +375,9 @@ def score(run: MrclamRun, landmarks: mrclam.Landmarks) -> dict[str, float]:
     mapped, ids = run.landmarks[known], run.landmark_ids[known]
     survey = landmarks.positions[landmarks.index(ids)] if len(ids) else np.empty((0, 2))
     scores["landmarks_mapped"] = float(len(np.unique(ids)))
-    scores["map_rmse_anchored"] = float(np.sqrt(np.mean(np.sum((mapped - survey) ** 2, axis=1)))) if len(ids) else math.nan
+    scores["map_rmse_anchored"] = (
+        float(np.sqrt(np.mean(np.sum((mapped - survey) ** 2, axis=1)))) if len(ids) else math.nan
+    )
     if len(np.unique(ids)) >= 2:
         rotation, translation = rigid_alignment(mapped, survey)
         aligned_map = mapped @ rotation.T + translation

@@ -269,7 +269,14 @@ def fit_scale_model(
                                          options={"maxiter": 4000, "xatol": 1e-8, "fatol": 1e-10})  # fmt: skip
         return np.asarray(result.x, dtype=np.float64)
 
-    return _refit(e, lambda t: np.asarray(log_sigma(t), dtype=np.float64), minimise, np.asarray(theta0, dtype=np.float64), k, reject)
+    return _refit(
+        e,
+        lambda t: np.asarray(log_sigma(t), dtype=np.float64),
+        minimise,
+        np.asarray(theta0, dtype=np.float64),
+        k,
+        reject,
+    )
 
 
 def fit_variance_regression(residuals, features, k: float = SCALE_K, reject: float | None = REJECT_AT) -> FloatArray:

@@ -1,4 +1,4 @@
-"""The Victoria Park dataset (ACFR, Guivant & Nebot): loader, GPS ground truth and runner.
+r"""The Victoria Park dataset (ACFR, Guivant & Nebot): loader, GPS ground truth and runner.
 
 A utility car drove ~4 km through Victoria Park, Sydney, logging wheel-encoder
 speed and steering (40 Hz), a SICK laser (trees extracted as range, bearing,
@@ -17,7 +17,7 @@ J. Guivant, E. Nebot, IEEE T-RA 17(3), 2001 when you use them.
   correspondences (:class:`~seif_gym.slam.association.Associator`).
 * Command line::
 
-      python -m seif_gym.datasets.victoria_park --data ../shared/data/victoria_park \\
+      python -m seif_gym.datasets.victoria_park --data ../shared/data/victoria_park \
           --filter seif --out OUT.npz [--steps N] [--plot OUT.png] [--signature] [--compare RUN.npz]
 
   writes ``OUT.npz`` (``time`` (N,) s, ``pose`` (N, 3) the estimated laser
@@ -44,6 +44,7 @@ import hashlib
 import math
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -51,6 +52,10 @@ from numpy.typing import NDArray
 from seif_gym.datasets._arrays import frozen
 from seif_gym.progress import Progress
 from seif_gym.threads import limit_blas_threads  # noqa: F401  (public here before seif_gym.threads existed)
+
+if TYPE_CHECKING:
+    from seif_gym.slam.association import AssociationStats, Associator
+    from seif_gym.slam.base import SlamFilter
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
@@ -419,7 +424,7 @@ class RunConfig:
 
 
 #: Trunk-diameter signature settings of --signature (Associator's signature_sigma, signature_per_metre).
-SIGNATURE_SETTINGS = {"signature_sigma": 0.07, "signature_per_metre": 0.005}
+SIGNATURE_SETTINGS: dict[str, Any] = {"signature_sigma": 0.07, "signature_per_metre": 0.005}
 
 
 @dataclass
@@ -439,7 +444,7 @@ class RunResult:
     total_seconds: float  # wall clock
     cpu_seconds: float  # CPU time of this process over the same loop
     warm_up_seconds: float
-    association: object
+    association: AssociationStats
     error: GpsError | None = None
 
     @property
@@ -448,7 +453,7 @@ class RunResult:
         return self.total_seconds / max(self.odometry_steps, 1)
 
     def save(self, path) -> None:
-        extra = {}
+        extra: dict[str, Any] = {}
         if self.error is not None:
             extra = {
                 "rmse": np.float64(self.error.rmse),
@@ -568,7 +573,7 @@ def run(
     return result
 
 
-def _setup(data: VictoriaPark, filter_name: str, config: RunConfig):
+def _setup(data: VictoriaPark, filter_name: str, config: RunConfig) -> tuple[SlamFilter, Associator]:
     """A fresh filter at the start pose and a fresh associator."""
     from seif_gym.slam import FILTERS
     from seif_gym.slam.association import Associator
@@ -711,7 +716,8 @@ def plot(result: RunResult, data: VictoriaPark, path, title: str | None = None, 
 
     t, ms, count = step_times(result)
     label = f"{result.filter_name.upper()}: {result.total_seconds:.1f} s" + (
-        f", {error.rmse:.2f} m" if error is not None else "")
+        f", {error.rmse:.2f} m" if error is not None else ""
+    )
     ax_time.plot(t, ms, "-o", ms=3, color="tab:blue", label=label)
     colours = iter(["tab:red", "tab:orange", "tab:purple", "tab:brown"])
     for other_path in compare:

@@ -6,7 +6,7 @@ import inspect
 import math
 import time
 from dataclasses import asdict, dataclass
-from typing import Any, NamedTuple
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 import gymnasium as gym
 import numpy as np
@@ -20,7 +20,10 @@ from seif_gym.observation import BeliefEncoder, ObservationConfig
 from seif_gym.slam import FILTERS, SEIF, RangeBearingSensor, SlamFilter, VelocityMotionModel, make_filter
 from seif_gym.slam.association import ASSOCIATOR_PRESETS, AssociationAudit, make_associator
 from seif_gym.slam.models import wrap_angle
-from seif_gym.world import LAYOUTS, World, WorldConfig, make_landmarks
+from seif_gym.world import World, WorldConfig, make_landmarks
+
+if TYPE_CHECKING:
+    from seif_gym.render import Renderer  # imports matplotlib: loaded on the first render()
 
 __all__ = [
     "Measurements", "SeifExploreEnv", "RewardConfig", "RobotConfig", "SensorConfig", "FilterConfig",
@@ -56,7 +59,7 @@ class RobotConfig:
     dt: float = 0.25
     max_speed: float = 1.0
     max_turn_rate: float = 1.0
-    motion_noise: tuple[float, float, float, float, float, float] = (0.01, 0.001, 0.001, 0.01, 0.0005, 0.0005)
+    motion_noise: tuple[float, ...] = (0.01, 0.001, 0.001, 0.01, 0.0005, 0.0005)
 
     def __post_init__(self) -> None:
         for name in ("dt", "max_speed", "max_turn_rate"):
@@ -304,13 +307,19 @@ class SeifExploreEnv(gym.Env):
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(f"render_mode must be one of {self.metadata['render_modes']} or None, got {render_mode!r}")
         self.world_config = WorldConfig(arena_size=arena_size, layout=layout, num_landmarks=num_landmarks)
-        self.robot_config = RobotConfig(dt=dt, max_speed=max_speed, max_turn_rate=max_turn_rate, motion_noise=tuple(motion_noise))
-        self.sensor_config = SensorConfig(sensor_range=sensor_range, fov=fov, sigma_range=sigma_range, sigma_bearing=sigma_bearing)
+        self.robot_config = RobotConfig(
+            dt=dt, max_speed=max_speed, max_turn_rate=max_turn_rate, motion_noise=tuple(motion_noise)
+        )
+        self.sensor_config = SensorConfig(
+            sensor_range=sensor_range, fov=fov, sigma_range=sigma_range, sigma_bearing=sigma_bearing
+        )
         self.filter_config = FilterConfig(
             filter=filter, max_active=max_active, data_association=data_association,
             mean_recovery=mean_recovery, ml_association=ml_association,
         )  # fmt: skip
-        self.reward_config = RewardConfig(reward=reward, d_cap=d_cap, wall_penalty=wall_penalty, divergence_threshold=divergence_threshold)
+        self.reward_config = RewardConfig(
+            reward=reward, d_cap=d_cap, wall_penalty=wall_penalty, divergence_threshold=divergence_threshold
+        )
         self.observation_config = ObservationConfig(
             nearest_landmarks=nearest_landmarks,
             map_size=map_size,
@@ -319,7 +328,9 @@ class SeifExploreEnv(gym.Env):
             coverage_resolution=coverage_resolution,
         )
         self.motion = VelocityMotionModel(alphas=self.robot_config.motion_noise)
-        self.sensor = RangeBearingSensor(sigma_range=sigma_range, sigma_bearing=sigma_bearing, max_range=sensor_range, fov=fov)
+        self.sensor = RangeBearingSensor(
+            sigma_range=sigma_range, sigma_bearing=sigma_bearing, max_range=sensor_range, fov=fov
+        )
         # validate the filter options once, at construction
         make_filter(self.filter_config.filter, self.motion, self.sensor, np.zeros(3), **self._filter_options())
         self.encoder = BeliefEncoder(arena_size, self.sensor, self.observation_config)
@@ -331,7 +342,7 @@ class SeifExploreEnv(gym.Env):
         self.measure_time = measure_time
         self._clock = time.perf_counter if measure_time else _no_clock
         self.render_mode = render_mode
-        self._renderer = None
+        self._renderer: Renderer | None = None
         self.world: World | None = None
         self.filter: SlamFilter | None = None
         self.trajectory: list[FloatArray] = []
@@ -432,13 +443,21 @@ class SeifExploreEnv(gym.Env):
             self.render()
         return observation, float(reward), diverged, False, info
 
+    def _require_state(self, method: str) -> tuple[World, SlamFilter]:
+        """The world and the filter of the running episode (``RuntimeError`` before ``reset()``)."""
+        if self.world is None or self.filter is None:
+            raise RuntimeError(f"call reset() before {method}()")
+        return self.world, self.filter
+
     def _filter_update(self, ranges, bearings, true_ids) -> None:
         """The filter's measurement update, with the true ids or with ML data association."""
+        _, filt = self._require_state("step")
         if self.associator is None:
-            self.filter.update_trusted(ranges, bearings, true_ids)
+            filt.update_trusted(ranges, bearings, true_ids)
             return
-        ids = self.associator.update(self.filter, ranges, bearings)
+        ids = self.associator.update(filt, ranges, bearings)
         # scored outside the filter's time: wrong, duplicate or discarded decisions of this step
+        assert self.audit is not None  # made together with the associator
         self._association_errors = self.audit.record(self.associator, ids, true_ids)
 
     # -- reward and info -------------------------------------------------------------
@@ -450,7 +469,8 @@ class SeifExploreEnv(gym.Env):
         from, and only the first landmark made for a true one counts
         (duplicates do not reduce the error).
         """
-        return filter_map_error(self.filter, self.world.landmarks, self.reward_config.d_cap, self.audit)
+        world, filt = self._require_state("map_error")
+        return filter_map_error(filt, world.landmarks, self.reward_config.d_cap, self.audit)
 
     def _log_det_criterion(self) -> float:
         """``-log det Sigma / dims`` over the whole map (unmapped landmarks at the prior ``d_cap^2``).
@@ -459,7 +479,7 @@ class SeifExploreEnv(gym.Env):
         information matrix (EKF: ``-log det Sigma``), so the reward
         ``criterion_t - criterion_{t-1}`` is the decrease of ``log det Sigma``.
         """
-        filt = self.filter
+        _, filt = self._require_state("step")
         unmapped = self.world_config.num_landmarks - filt.num_landmarks
         prior = 2 * unmapped * -math.log(self.reward_config.d_cap**2)
         information = getattr(filt, "information_matrix", None)
@@ -473,7 +493,7 @@ class SeifExploreEnv(gym.Env):
         return float((log_det_info + prior) / dims)
 
     def _info(self, control, executed, measurement, step_time, *, wall: bool, diverged: bool) -> dict[str, Any]:
-        filt, world = self.filter, self.world
+        world, filt = self._require_state("step")
         estimate = filt.pose
         error = world.pose - estimate
         error[2] = wrap_angle(float(error[2]))
@@ -520,7 +540,6 @@ class SeifExploreEnv(gym.Env):
         if self._renderer is not None:
             self._renderer.close()
             self._renderer = None
-
 
 
 #: The keyword arguments of SeifExploreEnv (what ``config`` returns, ``render_mode`` aside).

@@ -138,7 +138,9 @@ class SeifExploreVectorEnv(VectorEnv):
         self.metadata = {**self.metadata, "autoreset_mode": mode}
         self.render_mode = render_mode
         # the single envs: the configuration, the spaces, and every episode's start
-        self.envs = [SeifExploreEnv(render_mode=render_mode if e == 0 else None, **kwargs) for e in range(self.num_envs)]
+        self.envs = [
+            SeifExploreEnv(render_mode=render_mode if e == 0 else None, **kwargs) for e in range(self.num_envs)
+        ]
         template = self.envs[0]
         config = template.filter_config
         compiled = (config.filter == "seif" and config.data_association == "known" and config.mean_recovery == "wavefront"
@@ -222,7 +224,9 @@ class SeifExploreVectorEnv(VectorEnv):
         if actions.shape != (self.num_envs, 2):
             raise ValueError(f"actions must have shape {(self.num_envs, 2)}, got {actions.shape}")
         if not np.all(np.isfinite(actions)):
-            raise ValueError(f"actions must be finite, got non-finite rows {np.flatnonzero(~np.isfinite(actions).all(1)).tolist()}")
+            raise ValueError(
+                f"actions must be finite, got non-finite rows {np.flatnonzero(~np.isfinite(actions).all(1)).tolist()}"
+            )
         n = self.num_envs
         template = self.envs[0]
         if self.render_mode is not None and not self._autoreset[0]:

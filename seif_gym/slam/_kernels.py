@@ -488,7 +488,6 @@ def exact_marginal(robot_info, robot_links, landmark_info, neighbour_index, neig
     return covariance_rows(omega, rows)
 
 
-
 # ---------------------------------------------------------------------------
 # Wavefront mean recovery (the fast twin of seif.recover_mean_wavefront)
 # ---------------------------------------------------------------------------

@@ -215,8 +215,14 @@ def _pair_distances(pose, landmarks, joint, noise, ranges, bearings, pair_meas, 
     return d2, logdet
 
 
-def pair_innovations(pose: FloatArray, landmarks: FloatArray, ranges: FloatArray, bearings: FloatArray,
-                     pair_meas: IntArray, pair_slot: IntArray) -> tuple[FloatArray, FloatArray]:
+def pair_innovations(
+    pose: FloatArray,
+    landmarks: FloatArray,
+    ranges: FloatArray,
+    bearings: FloatArray,
+    pair_meas: IntArray,
+    pair_slot: IntArray,
+) -> tuple[FloatArray, FloatArray]:
     """Innovations ``nu`` (K, 2) and Jacobians ``H`` (K, 2, 5) of (measurement, candidate) pairs.
 
     Pair ``k`` is measurement ``pair_meas[k]`` and the landmark ``landmarks[pair_slot[k]]``; ``H``'s
@@ -235,8 +241,9 @@ def pair_innovations(pose: FloatArray, landmarks: FloatArray, ranges: FloatArray
     return nu, H
 
 
-def joint_innovation_covariance(H: FloatArray, pair_slot: IntArray, pair_meas: IntArray, joint: FloatArray,
-                                noise: FloatArray) -> FloatArray:
+def joint_innovation_covariance(
+    H: FloatArray, pair_slot: IntArray, pair_meas: IntArray, joint: FloatArray, noise: FloatArray
+) -> FloatArray:
     """Covariance ``(2K, 2K)`` of the innovations of K pairs: ``H P H^T`` plus ``Q`` within a measurement.
 
     ``joint`` is the covariance of the pose and the candidates (slot ``s`` at rows ``3 + 2 s, 4 + 2 s``).
@@ -266,8 +273,9 @@ class _JointSearch:
     (a Cholesky factor grown by one block row), so each node costs ``O(|H|^2)``.
     """
 
-    def __init__(self, nu: FloatArray, cov: FloatArray, pair_meas: IntArray, pair_landmark: IntArray,
-                 gate: float, max_nodes: int) -> None:
+    def __init__(
+        self, nu: FloatArray, cov: FloatArray, pair_meas: IntArray, pair_landmark: IntArray, gate: float, max_nodes: int
+    ) -> None:
         self.nu, self.cov = nu, cov
         self.pair_landmark = pair_landmark
         measurements = np.unique(pair_meas)
@@ -338,7 +346,8 @@ class _JointSearch:
             if grown is None:
                 continue
             used.add(int(self.pair_landmark[k]))
-            self._search(level + 1, pairs + [int(k)], *grown, used)
+            grown_lower, grown_white, grown_d2, grown_logdet = grown
+            self._search(level + 1, pairs + [int(k)], grown_lower, grown_white, grown_d2, grown_logdet, used)
             used.discard(int(self.pair_landmark[k]))
         if len(pairs) + len(self.options) - level - 1 >= self.best[0] and self.nodes < self.max_nodes:
             self._search(level + 1, pairs, lower, white, d2, logdet, used)
@@ -491,8 +500,16 @@ def _grow(nu, cov, lower, white, d2s, logdets, chosen, p, k, limits):
     return True
 
 
-def jcbb(nu: FloatArray, cov: FloatArray, pair_meas: IntArray, pair_landmark: IntArray, gate: float = 0.999,
-         max_nodes: int = 5000, initial: list[int] | None = None, compiled: bool = True) -> IntArray:
+def jcbb(
+    nu: FloatArray,
+    cov: FloatArray,
+    pair_meas: IntArray,
+    pair_landmark: IntArray,
+    gate: float = 0.999,
+    max_nodes: int = 5000,
+    initial: list[int] | None = None,
+    compiled: bool = True,
+) -> IntArray:
     """Joint compatibility branch and bound over candidate pairs (see :class:`_JointSearch`).
 
     Parameters
@@ -529,8 +546,16 @@ def jcbb(nu: FloatArray, cov: FloatArray, pair_meas: IntArray, pair_landmark: In
     option_start[1:] = np.cumsum(np.unique(pair_meas, return_counts=True)[1])
     limits = np.array([0.0] + [_chi2_limit(float(gate), 2 * p) for p in range(1, levels + 1)])
     start = np.asarray(initial if initial else [], dtype=np.int64)
-    found = _jcbb_compiled(np.ascontiguousarray(nu, dtype=np.float64), np.ascontiguousarray(cov, dtype=np.float64),
-                           option_start, order.astype(np.int64), pair_landmark, limits, int(max_nodes), start)
+    found = _jcbb_compiled(
+        np.ascontiguousarray(nu, dtype=np.float64),
+        np.ascontiguousarray(cov, dtype=np.float64),
+        option_start,
+        order.astype(np.int64),
+        pair_landmark,
+        limits,
+        int(max_nodes),
+        start,
+    )
     return np.sort(found).astype(np.int64)
 
 
@@ -751,9 +776,13 @@ class Associator:
             raise ValueError(f"landmark_separation must be non-negative, got {landmark_separation!r}")
         if not 0.0 <= detection < 1.0:
             raise ValueError(f"detection must lie in [0, 1), got {detection!r}")
-        for name, value, low in (("max_nodes", max_nodes, 1), ("blanket_size", blanket_size, 0),
-                                 ("closure_age", closure_age, 0), ("closure_pairings", closure_pairings, 1),
-                                 ("closure_window", closure_window, 0)):
+        for name, value, low in (
+            ("max_nodes", max_nodes, 1),
+            ("blanket_size", blanket_size, 0),
+            ("closure_age", closure_age, 0),
+            ("closure_pairings", closure_pairings, 1),
+            ("closure_window", closure_window, 0),
+        ):
             if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < low:
                 raise ValueError(f"{name} must be an int >= {low}, got {value!r}")
         self.gate = float(gate)

@@ -68,7 +68,7 @@ class UnknownLandmarkError(KeyError, ValueError):
 
 
 class SlamFilter(ABC):
-    """Base class of the SLAM filters (``EKF``, ``EIF``, ``SEIF``, ...).
+    r"""Base class of the SLAM filters (``EKF``, ``EIF``, ``SEIF``, ...).
 
     Parameters
     ----------
@@ -141,24 +141,34 @@ class SlamFilter(ABC):
             )
         noise = getattr(sensor, "noise_covariance", None)
         if noise is None or np.shape(noise) != (2, 2):
-            raise TypeError(f"sensor must be a range-bearing sensor with a (2, 2) noise_covariance, got {type(sensor).__name__}")
+            raise TypeError(
+                f"sensor must be a range-bearing sensor with a (2, 2) noise_covariance, got {type(sensor).__name__}"
+            )
         unknown = sorted(set(options) - set(self.OPTIONS) - set(COMMON_OPTIONS))
         if unknown:
             valid = ", ".join([*self.OPTIONS, *COMMON_OPTIONS])
-            raise TypeError(f"{type(self).__name__} got unknown option(s) {', '.join(map(repr, unknown))}; valid options: {valid}")
+            raise TypeError(
+                f"{type(self).__name__} got unknown option(s) {', '.join(map(repr, unknown))}; valid options: {valid}"
+            )
         gate = _check_gate(options.get("innovation_gate"))
         pose = as_finite_vector(initial_pose, "initial_pose", 3).copy()
         pose[2] = wrap_angle(float(pose[2]))
-        cov = DEFAULT_INITIAL_POSE_COV if initial_pose_cov is None else as_covariance(initial_pose_cov, "initial_pose_cov", 3)
+        cov = (
+            DEFAULT_INITIAL_POSE_COV
+            if initial_pose_cov is None
+            else as_covariance(initial_pose_cov, "initial_pose_cov", 3)
+        )
         self.motion = motion
         self.sensor = sensor
         # the inputs are validated here once; the models' unchecked paths skip a second check
         self._linearize = getattr(motion, "linearize_trusted", motion.linearize)
         self._measurement_cov: FloatArray = np.array(noise, dtype=np.float64)
-        self._measurement_info: FloatArray = np.linalg.inv(self._measurement_cov)
+        self._measurement_info: FloatArray = np.asarray(np.linalg.inv(self._measurement_cov), dtype=np.float64)
         self._range_noise = bool(getattr(sensor, "range_dependent", False))
         if self._range_noise and not callable(getattr(sensor, "measurement_covariances", None)):
-            raise TypeError(f"sensor is range_dependent but has no measurement_covariances(ranges), got {type(sensor).__name__}")
+            raise TypeError(
+                f"sensor is range_dependent but has no measurement_covariances(ranges), got {type(sensor).__name__}"
+            )
         self.innovation_gate: float | None = gate
         self.gated_measurements = 0
         self.last_gated_ids: NDArray[np.int64] = np.empty(0, dtype=np.int64)
@@ -170,7 +180,7 @@ class SlamFilter(ABC):
         self._initialize(pose, np.array(cov, dtype=np.float64))
 
     # -- hooks for subclasses ------------------------------------------------
-    def _check_options(self, options: dict[str, Any]) -> None:
+    def _check_options(self, options: dict[str, Any]) -> None:  # noqa: B027 (optional hook: no options by default)
         """Validate ``options`` (raise ``TypeError``/``ValueError``)."""
 
     @abstractmethod
@@ -182,7 +192,9 @@ class SlamFilter(ABC):
         """Motion update with validated inputs."""
 
     @abstractmethod
-    def _update(self, ranges: FloatArray, bearings: FloatArray, indices: NDArray[np.int64], is_new: NDArray[np.bool_]) -> None:
+    def _update(
+        self, ranges: FloatArray, bearings: FloatArray, indices: NDArray[np.int64], is_new: NDArray[np.bool_]
+    ) -> None:
         """Measurement update with validated inputs.
 
         ``indices`` are state orders of the observed landmarks; the ones with
@@ -265,7 +277,9 @@ class SlamFilter(ABC):
         rows[:, :3] = np.arange(3)
         rows[:, 3:] = 3 + 2 * np.arange(len(indices))[:, None] + np.arange(2)
         blocks = joint[rows[:, :, None], rows[:, None, :]]  # (k, 5, 5): pose and landmark i
-        covariances = np.einsum("kac,kcd,kbd->kab", jacobians, blocks, jacobians) + self._noise_covariances(ranges[mapped])
+        covariances = np.einsum("kac,kcd,kbd->kab", jacobians, blocks, jacobians) + self._noise_covariances(
+            ranges[mapped]
+        )
         distances[mapped] = mahalanobis_squared(innovations, covariances)
         return distances
 
@@ -467,20 +481,16 @@ class SlamFilter(ABC):
         return self._state_nbytes() + self._ids.nbytes
 
     @abstractmethod
-    def _mean_vector(self) -> FloatArray:
-        ...
+    def _mean_vector(self) -> FloatArray: ...
 
     @abstractmethod
-    def _marginal_covariance(self, state_indices: NDArray[np.int64]) -> FloatArray:
-        ...
+    def _marginal_covariance(self, state_indices: NDArray[np.int64]) -> FloatArray: ...
 
     @abstractmethod
-    def _full_covariance(self) -> FloatArray:
-        ...
+    def _full_covariance(self) -> FloatArray: ...
 
     @abstractmethod
-    def _state_nbytes(self) -> int:
-        ...
+    def _state_nbytes(self) -> int: ...
 
     def __repr__(self) -> str:
         options = ", ".join(f"{k}={v!r}" for k, v in self.options.items())

@@ -238,7 +238,12 @@ class BatchedSEIF:
         if ids.shape != (n, width) or not np.issubdtype(ids.dtype, np.integer):
             raise ValueError(f"ids must be an int array of shape {(n, width)}, got {ids.dtype} {ids.shape}")
         counts = np.asarray(counts)
-        if counts.shape != (n,) or not np.issubdtype(counts.dtype, np.integer) or counts.min() < 0 or counts.max() > width:
+        if (
+            counts.shape != (n,)
+            or not np.issubdtype(counts.dtype, np.integer)
+            or counts.min() < 0
+            or counts.max() > width
+        ):
             raise ValueError(f"counts must be {n} ints in [0, {width}], got {counts!r}")
         used = np.arange(width) < counts[:, None]
         if np.any(ranges[used] <= 0.0):

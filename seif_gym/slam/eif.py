@@ -34,7 +34,6 @@ __all__ = ["EIF"]
 FloatArray = NDArray[np.float64]
 
 
-
 def _spd_inverse(matrix: FloatArray) -> FloatArray:
     """Inverse of a small symmetric positive definite matrix by Cholesky, symmetrized."""
     factor = scipy.linalg.cho_factor(matrix, lower=True, check_finite=False)
@@ -42,7 +41,7 @@ def _spd_inverse(matrix: FloatArray) -> FloatArray:
 
 
 class EIF(SlamFilter):
-    """Extended information filter SLAM with known correspondences.
+    r"""Extended information filter SLAM with known correspondences.
 
     Parameters
     ----------
@@ -72,7 +71,7 @@ class EIF(SlamFilter):
     and marginalizing the old pose ``x`` (Schur complement, with
     ``P = Omega_xx + G^T R^-1 G`` and ``B = [-R^-1 G; Omega_mx]``) gives
 
-    .. math:: \\bar\\Omega = \\begin{bmatrix} R^{-1} & 0 \\\\ 0 & \\Omega_{mm} \\end{bmatrix}
+    .. math:: \bar\Omega = \begin{bmatrix} R^{-1} & 0 \\ 0 & \Omega_{mm} \end{bmatrix}
               - B P^{-1} B^T .
 
     Then ``mu_bar = (mu_x + delta, mu_m)`` with the heading wrapped, and
@@ -87,9 +86,9 @@ class EIF(SlamFilter):
     ``sensor.inverse(mu_x, z)``. Then, with every ``H_i`` linearized at
     ``mu_bar``,
 
-    .. math:: \\Omega \\mathrel{+}= \\sum_i H_i^T Q^{-1} H_i, \\qquad
-              \\xi \\mathrel{+}= \\sum_i H_i^T Q^{-1}
-              (\\mathrm{wrap}(z_i - \\hat z_i) + H_i \\bar\\mu).
+    .. math:: \Omega \mathrel{+}= \sum_i H_i^T Q^{-1} H_i, \qquad
+              \xi \mathrel{+}= \sum_i H_i^T Q^{-1}
+              (\mathrm{wrap}(z_i - \hat z_i) + H_i \bar\mu).
 
     *Mean recovery* is exact: ``mu = Omega^-1 xi`` by a Cholesky factorization
     of ``Omega`` (``SEIF.md`` section 4, "exact recovery"), computed as the

@@ -23,9 +23,8 @@ __all__ = ["EKF"]
 FloatArray = NDArray[np.float64]
 
 
-
 class EKF(SlamFilter):
-    """EKF SLAM with known correspondences and a dense covariance.
+    r"""EKF SLAM with known correspondences and a dense covariance.
 
     Parameters
     ----------
@@ -44,9 +43,9 @@ class EKF(SlamFilter):
     "Velocity motion model"): with
     ``(delta, G, R) = motion.linearize(mu_x, u, dt)``,
 
-    .. math:: \\mu_x \\leftarrow \\mu_x + \\delta, \\quad
-              \\Sigma_{xx} \\leftarrow G \\Sigma_{xx} G^T + R, \\quad
-              \\Sigma_{xm} \\leftarrow G \\Sigma_{xm},
+    .. math:: \mu_x \leftarrow \mu_x + \delta, \quad
+              \Sigma_{xx} \leftarrow G \Sigma_{xx} G^T + R, \quad
+              \Sigma_{xm} \leftarrow G \Sigma_{xm},
 
     the heading wrapped afterwards. Only the robot rows and columns change.
 
@@ -181,7 +180,9 @@ class EKF(SlamFilter):
             innovation_cov = times_jacobian_transpose(cov_jt_old.T)  # H Sigma H^T, (2m, 2m)
             old_covs = None if noise_covs is None else noise_covs[old]
             for k in range(old_count):
-                innovation_cov[2 * k : 2 * k + 2, 2 * k : 2 * k + 2] += measurement_cov if old_covs is None else old_covs[k]
+                innovation_cov[2 * k : 2 * k + 2, 2 * k : 2 * k + 2] += (
+                    measurement_cov if old_covs is None else old_covs[k]
+                )
             factor = scipy.linalg.cho_factor(symmetrized(innovation_cov), lower=True, check_finite=False)
             cov_jt = np.vstack([cov_jt_old, cov_jt_new])  # Sigma H^T over the augmented state
             gain_transpose = scipy.linalg.cho_solve(factor, cov_jt.T, check_finite=False)  # K^T = S^-1 H Sigma

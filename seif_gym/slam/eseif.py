@@ -50,7 +50,7 @@ from numba import njit
 from numpy.typing import NDArray
 
 from seif_gym.slam import _kernels
-from seif_gym.slam.seif import SEIF, measurement_update
+from seif_gym.slam.seif import SEIF
 
 __all__ = [
     "ESEIF",
@@ -197,9 +197,8 @@ def _pose_information(offsets, covariances, noise_cov):
         i00, i01, i11 = s11 / det, -s01 / det, s00 / det
         for u in range(3):
             for v in range(3):
-                out[k, u, v] = (
-                    H_x[0, u] * (i00 * H_x[0, v] + i01 * H_x[1, v])
-                    + H_x[1, u] * (i01 * H_x[0, v] + i11 * H_x[1, v])
+                out[k, u, v] = H_x[0, u] * (i00 * H_x[0, v] + i01 * H_x[1, v]) + H_x[1, u] * (
+                    i01 * H_x[0, v] + i11 * H_x[1, v]
                 )
     return out
 

@@ -142,7 +142,7 @@ class InformationStore:
         )
         return int(sum(a.nbytes for a in arrays))
 
-    def copy(self) -> "InformationStore":
+    def copy(self) -> InformationStore:
         clone = InformationStore.__new__(InformationStore)
         for name, value in vars(self).items():
             setattr(clone, name, value.copy() if isinstance(value, np.ndarray) else value)

@@ -13,6 +13,7 @@ Equations are those of ``SEIF.md`` ("Velocity motion model",
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from typing import Protocol, runtime_checkable
 
 import numpy as np
@@ -39,8 +40,8 @@ def wrap_angle(angle):
     """Wrap angles to ``[-pi, pi)``; a float gives a float, anything else an array."""
     # the modulo can round up to exactly 2 pi for inputs a hair below -pi: fold that back
     if isinstance(angle, float):
-        wrapped = (angle + math.pi) % (2.0 * math.pi) - math.pi
-        return wrapped - 2.0 * math.pi if wrapped >= math.pi else wrapped
+        folded = (angle + math.pi) % (2.0 * math.pi) - math.pi
+        return folded - 2.0 * math.pi if folded >= math.pi else folded
     wrapped = (np.asarray(angle, dtype=np.float64) + np.pi) % (2.0 * np.pi) - np.pi
     return np.where(wrapped >= np.pi, wrapped - 2.0 * np.pi, wrapped)
 
@@ -60,17 +61,15 @@ class MotionModel(Protocol):
     than the model itself).
     """
 
-    def linearize(self, pose: FloatArray, control: FloatArray, dt: float) -> tuple[FloatArray, FloatArray, FloatArray]:
-        ...
+    def linearize(
+        self, pose: FloatArray, control: FloatArray, dt: float
+    ) -> tuple[FloatArray, FloatArray, FloatArray]: ...
 
-    def predict(self, pose: FloatArray, control: FloatArray, dt: float) -> FloatArray:
-        ...
+    def predict(self, pose: FloatArray, control: FloatArray, dt: float) -> FloatArray: ...
 
-    def sample(self, pose: FloatArray, control: FloatArray, dt: float, rng: np.random.Generator) -> FloatArray:
-        ...
+    def sample(self, pose: FloatArray, control: FloatArray, dt: float, rng: np.random.Generator) -> FloatArray: ...
 
-    def validate_control(self, control) -> FloatArray:
-        ...
+    def validate_control(self, control) -> FloatArray: ...
 
 
 def _sinc_and_derivative(a: float) -> tuple[float, float]:
@@ -83,7 +82,7 @@ def _sinc_and_derivative(a: float) -> tuple[float, float]:
 
 
 class VelocityMotionModel:
-    """Thrun's velocity motion model with controls ``(v, omega)``.
+    r"""Thrun's velocity motion model with controls ``(v, omega)``.
 
     Parameters
     ----------
@@ -99,8 +98,8 @@ class VelocityMotionModel:
     -----
     Implements ``SEIF.md``, "Velocity motion model". The arc is written as
 
-    .. math:: \\delta = (v\\Delta t\\,\\cos(\\theta+\\omega\\Delta t/2)\\,\\mathrm{sinc}(\\omega\\Delta t/2),
-              v\\Delta t\\,\\sin(\\theta+\\omega\\Delta t/2)\\,\\mathrm{sinc}(\\omega\\Delta t/2), \\omega\\Delta t)
+    .. math:: \delta = (v\Delta t\,\cos(\theta+\omega\Delta t/2)\,\mathrm{sinc}(\omega\Delta t/2),
+              v\Delta t\,\sin(\theta+\omega\Delta t/2)\,\mathrm{sinc}(\omega\Delta t/2), \omega\Delta t)
 
     which equals the ``v/w (sin(theta + w dt) - sin theta)`` form of the book
     exactly (a product-to-sum identity) and is continuous at ``w = 0``, where
@@ -110,7 +109,7 @@ class VelocityMotionModel:
 
     def __init__(
         self,
-        alphas: tuple[float, float, float, float, float, float] = (0.01, 0.001, 0.001, 0.01, 0.0005, 0.0005),
+        alphas: Sequence[float] = (0.01, 0.001, 0.001, 0.01, 0.0005, 0.0005),
         noise_floor: float = 1e-9,
     ) -> None:
         alphas_array = as_finite_vector(alphas, "alphas", 6)
@@ -411,7 +410,9 @@ class RangeBearingSensor:
             mask &= np.abs(z[:, 1]) <= 0.5 * self.fov
         return mask
 
-    def sample(self, pose, landmarks, rng: np.random.Generator, ids=None) -> tuple[FloatArray, FloatArray, NDArray[np.int64]]:
+    def sample(
+        self, pose, landmarks, rng: np.random.Generator, ids=None
+    ) -> tuple[FloatArray, FloatArray, NDArray[np.int64]]:
         """Noisy ``(ranges, bearings, ids)`` of the visible landmarks.
 
         ``ids`` defaults to the landmarks' row indices. Ranges are kept
@@ -427,7 +428,9 @@ class RangeBearingSensor:
                 raise ValueError("ids must be one integer per landmark")
         return self.sample_trusted(pose, landmarks, rng, ids)
 
-    def sample_trusted(self, pose, landmarks, rng: np.random.Generator, ids=None) -> tuple[FloatArray, FloatArray, NDArray[np.int64]]:
+    def sample_trusted(
+        self, pose, landmarks, rng: np.random.Generator, ids=None
+    ) -> tuple[FloatArray, FloatArray, NDArray[np.int64]]:
         """:meth:`sample` without input checks, for the simulator's inner loop."""
         visible, z = _visible_measurements(
             float(pose[0]), float(pose[1]), float(pose[2]), landmarks, self.max_range, 0.5 * self.fov

@@ -63,7 +63,7 @@ def _density(value, name: str) -> tuple[float, float, float]:
 
 
 class PerSecondVelocityMotionModel:
-    """Velocity motion model whose noise is specified per second (dt-linear).
+    r"""Velocity motion model whose noise is specified per second (dt-linear).
 
     Parameters
     ----------
@@ -92,13 +92,13 @@ class PerSecondVelocityMotionModel:
     the commanded ones plus *white* noise of densities ``q_v``, ``q_w``
     averaged over the step, i.e. with covariance
 
-    .. math:: M_{dt} = \\mathrm{diag}(q_v, q_\\omega) / \\Delta t,
+    .. math:: M_{dt} = \mathrm{diag}(q_v, q_\omega) / \Delta t,
 
     and a lateral displacement ``N(0, q_l dt)`` along
     ``n = (-sin(theta + omega dt / 2), cos(theta + omega dt / 2), 0)``. The
     state-space noise is
 
-    .. math:: R = V M_{dt} V^T + q_l \\Delta t\\, n n^T + \\epsilon \\Delta t\\, I .
+    .. math:: R = V M_{dt} V^T + q_l \Delta t\, n n^T + \epsilon \Delta t\, I .
 
     Since ``V = dt J`` with ``J = (c, s, 0; *, *, 1)`` bounded, ``R = dt (J
     diag(q_v, q_w) J^T + q_l n n^T + eps I)``: linear in ``dt`` to first order.
@@ -160,7 +160,9 @@ class PerSecondVelocityMotionModel:
         half = 0.5 * control[1] * dt
         sinc, _ = _sinc_and_derivative(half)
         mid = pose[2] + half
-        return np.array([control[0] * dt * math.cos(mid) * sinc, control[0] * dt * math.sin(mid) * sinc, control[1] * dt])
+        return np.array(
+            [control[0] * dt * math.cos(mid) * sinc, control[0] * dt * math.sin(mid) * sinc, control[1] * dt]
+        )
 
     def predict(self, pose, control, dt) -> FloatArray:
         """Noise-free next pose with the heading wrapped."""
@@ -252,7 +254,7 @@ class PerSecondVelocityMotionModel:
 
 @dataclass(frozen=True)
 class CommandCorrection:
-    """Map commanded velocities to the ones a robot executes.
+    r"""Map commanded velocities to the ones a robot executes.
 
     Parameters
     ----------
@@ -269,8 +271,8 @@ class CommandCorrection:
 
     Notes
     -----
-    .. math:: v' = s_v\\, v \\max(0, 1 - c|\\omega|) + b_v, \\qquad
-              \\omega' = s_\\omega\\, \\omega + b_\\omega .
+    .. math:: v' = s_v\, v \max(0, 1 - c|\omega|) + b_v, \qquad
+              \omega' = s_\omega\, \omega + b_\omega .
 
     The form transfers between the MRCLAM datasets (their README: at
     ``|omega| > 0.3`` rad/s the robots reach ~0.6 of the commanded speed, and
@@ -301,13 +303,18 @@ class CommandCorrection:
         """Corrected controls of ``control``: shape (2,) or (n, 2) -> the same shape."""
         array = np.asarray(control, dtype=np.float64) if not isinstance(control, (str, bytes)) else None
         if array is None or array.ndim not in (1, 2) or array.shape[-1] != 2:
-            raise ValueError(f"control must have shape (2,) or (n, 2), got {getattr(array, 'shape', type(control).__name__)}")
+            raise ValueError(
+                f"control must have shape (2,) or (n, 2), got {getattr(array, 'shape', type(control).__name__)}"
+            )
         array = as_finite_array(array, "control", (None,) * (array.ndim - 1) + (2,))
         if array.ndim == 1:
             return self.apply_trusted(array)
         factor = np.maximum(0.0, 1.0 - self.turn_slowdown * np.abs(array[:, 1]))
         return np.column_stack(
-            [self.speed_scale * array[:, 0] * factor + self.speed_offset, self.turn_scale * array[:, 1] + self.turn_offset]
+            [
+                self.speed_scale * array[:, 0] * factor + self.speed_offset,
+                self.turn_scale * array[:, 1] + self.turn_offset,
+            ]
         )
 
     def apply_trusted(self, control: FloatArray) -> FloatArray:
@@ -352,7 +359,9 @@ class CorrectedMotionModel:
 
     def __init__(self, model, correction: CommandCorrection) -> None:
         if not callable(getattr(model, "linearize", None)) or not callable(getattr(model, "validate_control", None)):
-            raise TypeError(f"model must be a motion model with linearize and validate_control, got {type(model).__name__}")
+            raise TypeError(
+                f"model must be a motion model with linearize and validate_control, got {type(model).__name__}"
+            )
         if not isinstance(correction, CommandCorrection):
             raise TypeError(f"correction must be a CommandCorrection, got {type(correction).__name__}")
         self.model = model
@@ -385,7 +394,9 @@ class CorrectedMotionModel:
     def jacobian_control(self, pose, control, dt) -> FloatArray:
         """``V' = V(c(u)) dc/du`` (3, 2), by the chain rule."""
         control = self.validate_control(control)
-        return self.model.jacobian_control(pose, self.correction.apply_trusted(control), dt) @ self.correction.jacobian(control)
+        return self.model.jacobian_control(pose, self.correction.apply_trusted(control), dt) @ self.correction.jacobian(
+            control
+        )
 
     def sample(self, pose, control, dt, rng: np.random.Generator) -> FloatArray:
         """The model's draw at the corrected controls."""
@@ -398,7 +409,7 @@ class CorrectedMotionModel:
 
 
 class RangeDependentSensor(RangeBearingSensor):
-    """Range-bearing sensor whose range noise grows with range.
+    r"""Range-bearing sensor whose range noise grows with range.
 
     Parameters
     ----------
@@ -411,8 +422,8 @@ class RangeDependentSensor(RangeBearingSensor):
 
     Notes
     -----
-    .. math:: \\sigma_r(r) = \\mathrm{clip}(a r, lo, hi), \\qquad
-              Q(r) = \\mathrm{diag}(\\sigma_r(r)^2, \\sigma_\\phi^2).
+    .. math:: \sigma_r(r) = \mathrm{clip}(a r, lo, hi), \qquad
+              Q(r) = \mathrm{diag}(\sigma_r(r)^2, \sigma_\phi^2).
 
     The measurement function and its Jacobian ``H`` are the range-bearing
     sensor's (the noise does not change them). The filters evaluate ``Q`` at

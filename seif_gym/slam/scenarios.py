@@ -102,10 +102,15 @@ FIDELITY_SCENARIOS: dict[str, LoopScenario] = {
     "rectangle": LoopScenario(shape="rectangle", size=12.0),
     "rectangle-narrow": LoopScenario(shape="rectangle", size=14.0, landmark_spacing=2.5, sensor_range=6.0, fov=math.pi),
     "figure8": LoopScenario(shape="figure8", size=7.0, laps=1.15),
-    "figure8-sparse": LoopScenario(shape="figure8", size=8.0, laps=1.15, landmark_spacing=3.5, band=3.0, sensor_range=4.5),
-    "circle-large": LoopScenario(shape="circle", size=18.0, landmark_spacing=2.5, band=3.5, sensor_range=6.0, laps=1.15),
-    "rectangle-large": LoopScenario(shape="rectangle", size=18.0, landmark_spacing=2.5, band=3.5, sensor_range=6.0,
-                                    fov=math.pi, laps=1.15),
+    "figure8-sparse": LoopScenario(
+        shape="figure8", size=8.0, laps=1.15, landmark_spacing=3.5, band=3.0, sensor_range=4.5
+    ),
+    "circle-large": LoopScenario(
+        shape="circle", size=18.0, landmark_spacing=2.5, band=3.5, sensor_range=6.0, laps=1.15
+    ),
+    "rectangle-large": LoopScenario(
+        shape="rectangle", size=18.0, landmark_spacing=2.5, band=3.5, sensor_range=6.0, fov=math.pi, laps=1.15
+    ),
 }
 
 
@@ -175,7 +180,9 @@ def loop_landmarks(scenario: LoopScenario, path: FloatArray, rng: np.random.Gene
     low = path.min(axis=0) - scenario.band
     high = path.max(axis=0) + scenario.band
     # area of the band, estimated on a grid of the bounding box
-    grid = np.stack(np.meshgrid(np.linspace(low[0], high[0], 120), np.linspace(low[1], high[1], 120)), -1).reshape(-1, 2)
+    grid = np.stack(np.meshgrid(np.linspace(low[0], high[0], 120), np.linspace(low[1], high[1], 120)), -1).reshape(
+        -1, 2
+    )
     near = _distance_to_path(grid, path) < scenario.band
     area = float(np.prod(high - low)) * float(np.mean(near))
     target = int(round(area / scenario.landmark_spacing**2))

@@ -35,7 +35,7 @@ from numpy.typing import NDArray
 
 from seif_gym.slam import _kernels
 from seif_gym.slam.base import SlamFilter
-from seif_gym.slam.information import InformationStore, block_slices
+from seif_gym.slam.information import InformationStore
 from seif_gym.slam.models import wrap_angle
 
 __all__ = [
@@ -143,12 +143,15 @@ def measurement_update(
         q = float(d @ d)
         sqrt_q = np.sqrt(q)
         z_hat = np.array([sqrt_q, np.arctan2(d[1], d[0]) - theta])
-        H_small = np.array(
-            [
-                [-sqrt_q * d[0], -sqrt_q * d[1], 0.0, sqrt_q * d[0], sqrt_q * d[1]],
-                [d[1], -d[0], -q, -d[1], d[0]],
-            ]
-        ) / q
+        H_small = (
+            np.array(
+                [
+                    [-sqrt_q * d[0], -sqrt_q * d[1], 0.0, sqrt_q * d[0], sqrt_q * d[1]],
+                    [d[1], -d[0], -q, -d[1], d[0]],
+                ]
+            )
+            / q
+        )
         H = np.zeros((2, len(xi)))
         H[:, :3] = H_small[:, :3]
         H[:, j] = H_small[:, 3:]
@@ -494,8 +497,8 @@ class UpdateJournal:
             _kernels.undo_wavefront(store.mean, items, queued, state, kind, index, value, int(count[0]))
         for name, array in zip(self._STORE_ARRAYS, self._store_arrays):
             setattr(store, name, array)
-        for name, array in zip(self._FILTER_ARRAYS, self._filter_arrays):
-            setattr(filt, name, array)
+        for name, filter_array in zip(self._FILTER_ARRAYS, self._filter_arrays):
+            setattr(filt, name, filter_array)
         store.num_landmarks, filt._update_count, filt._round_robin, counters = self._scalars
         for name, value in zip(filt._COUNTERS, counters):
             setattr(filt, name, value)
@@ -523,7 +526,9 @@ def recover_mean_exact(store: InformationStore) -> None:
     store.mean[: store.state_dim] = solver.solve(store.information_vector_view())
 
 
-def blanket_covariances(store: InformationStore, nodes: IndexArray, targets: IndexArray) -> tuple[FloatArray, FloatArray]:
+def blanket_covariances(
+    store: InformationStore, nodes: IndexArray, targets: IndexArray
+) -> tuple[FloatArray, FloatArray]:
     """Covariances of the robot and of ``targets`` from the block over the robot and ``nodes``.
 
     ``nodes`` must contain every landmark of ``targets``. The block's inverse
@@ -739,9 +744,7 @@ class SEIF(SlamFilter):
             self._is_active = np.concatenate([self._is_active, np.zeros(grow, dtype=bool)])
         self._queue.grow(store.capacity)
 
-    def _incorporate(
-        self, ranges: FloatArray, bearings: FloatArray, indices: IndexArray, weight: float = 1.0
-    ) -> None:
+    def _incorporate(self, ranges: FloatArray, bearings: FloatArray, indices: IndexArray, weight: float = 1.0) -> None:
         """``SEIF.md`` section 2 with these measurements; their landmarks become active.
 
         ``weight`` scales the measurement information ``Q^-1`` (the ESEIF's

@@ -35,11 +35,10 @@ from typing import TYPE_CHECKING
 import numpy as np
 from numpy.typing import NDArray
 
-from seif_gym.slam._validation import as_finite_array, as_finite_vector, as_positive_scalar
-from seif_gym.slam.models import wrap_angle
-
 # the metric has one home, seif_gym.metrics; re-exported here, where it was first defined
 from seif_gym.metrics import pose_nees  # noqa: F401  (after the slam imports: metrics imports slam.models)
+from seif_gym.slam._validation import as_finite_array, as_finite_vector, as_positive_scalar
+from seif_gym.slam.models import wrap_angle
 
 if TYPE_CHECKING:  # imported for annotations only: no import cycle at run time
     from seif_gym.slam.base import SlamFilter
@@ -168,6 +167,7 @@ def simulate_run(
             z = sensor.predict(pose, landmarks[visible])
             step_ranges, step_bearings, step_ids = z[:, 0], z[:, 1], all_ids[visible]
         else:
+            assert rng is not None  # checked above
             pose = motion.sample(pose, control, dt, rng)
             step_ranges, step_bearings, step_ids = sensor.sample(pose, landmarks, rng)
         poses[t + 1] = pose

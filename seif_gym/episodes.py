@@ -184,6 +184,13 @@ class Episode:
     rewards: FloatArray
     map_errors: FloatArray
 
+    def __reduce__(self) -> tuple[Any, ...]:
+        # pickled (to a worker process or a Ray node and back) through the constructor: the read-only
+        # config (a mappingproxy) does not pickle itself, and the copy is checked like a fresh one
+        plain = {field.name: getattr(self, field.name) for field in fields(self)}
+        plain["config"] = json.loads(_json_config(self.config))
+        return (type(self), tuple(plain.values()))
+
     def __post_init__(self) -> None:
         set_field = object.__setattr__
         set_field(self, "config", _config_from_json(_json_config(self.config)))

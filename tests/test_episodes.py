@@ -5,6 +5,7 @@ from __future__ import annotations
 import dataclasses
 import doctest
 import inspect
+import pickle
 from functools import cache
 
 import gymnasium as gym
@@ -132,6 +133,17 @@ def test_saved_episode_loads_identical(tmp_path):
     rewards = episode.rewards.copy()
     rewards[3] += 1e-12
     assert dataclasses.replace(episode, rewards=rewards) != episode
+
+
+def test_episode_pickles_identical():
+    """Episodes travel to worker processes and Ray nodes and back (agents.parallel) by pickle."""
+    episode = record("SeifExploreLoop-v0").episode
+    copy = pickle.loads(pickle.dumps(episode))
+    assert copy == episode and copy.config == episode.config and copy.seed == episode.seed
+    assert isinstance(copy.config["motion_noise"], tuple)
+    with pytest.raises(TypeError):
+        copy.config["layout"] = "grid"  # still read only
+    assert not copy.rewards.flags.writeable
 
 
 def test_episode_is_read_only_and_validated():

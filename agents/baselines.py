@@ -247,6 +247,9 @@ class Agent(ABC):
     name: ClassVar[str] = "agent"
     #: Whether the agent needs the env's filter (``env`` may not be ``None``).
     needs_filter: ClassVar[bool] = False
+    #: Whether state carries from one episode into the next (beyond what ``reset`` clears), so that an
+    #: episode's actions depend on the episodes before it: a harness must then run them in order.
+    carries_over_episodes: ClassVar[bool] = False
 
     def __init__(self, env: Any | None = None) -> None:
         self.env = env
@@ -344,6 +347,7 @@ class RandomAgent(Agent):
     """
 
     name = "random"
+    carries_over_episodes = True  # one generator for all episodes
 
     def __init__(self, env: Any, *, seed: int | None = None) -> None:
         super().__init__(env)
@@ -949,6 +953,14 @@ _REGISTRY: dict[str, type[Agent]] = {cls.name: cls for cls in (RandomAgent, Fron
 BASELINES: tuple[str, ...] = tuple(_REGISTRY)
 
 
+def baseline_class(name: str) -> type[Agent]:
+    """The class of the baseline ``name`` (one of :data:`BASELINES`; ``ValueError`` otherwise)."""
+    try:
+        return _REGISTRY[name]
+    except (KeyError, TypeError):
+        raise ValueError(f"unknown agent {name!r}; baselines: {', '.join(BASELINES)}") from None
+
+
 def make_agent(name: str, env: Any, **kwargs: Any) -> Agent:
     """Build the baseline ``name``.
 
@@ -979,8 +991,4 @@ def make_agent(name: str, env: Any, **kwargs: Any) -> Agent:
         from agents.rllib_agent import RLlibAgent
 
         return RLlibAgent(name[len("rllib:") :], env, **kwargs)
-    try:
-        cls = _REGISTRY[name]
-    except KeyError:
-        raise ValueError(f"unknown agent {name!r}; baselines: {', '.join(BASELINES)}") from None
-    return cls(env, **kwargs)
+    return baseline_class(name)(env, **kwargs)

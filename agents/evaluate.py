@@ -106,7 +106,10 @@ import numpy as np
 from scipy import stats
 
 import seif_gym  # noqa: F401  (registers the environments)
-from agents.baselines import BASELINES, Agent, make_agent
+from agents.baselines import BASELINES, Agent, baseline_class, make_agent
+from agents.parallel import Executor, chunks
+from agents.parallel import add_arguments as add_executor_arguments
+from agents.parallel import from_arguments as executor_from_arguments
 from seif_gym.progress import Progress
 
 __all__ = [
@@ -383,6 +386,35 @@ def run_episode(agent: Agent, env: gym.Env, seed: int) -> tuple[dict[str, Any], 
     return row, map_errors
 
 
+def _carries_over(target: str) -> bool:
+    """Whether the agent of ``target`` carries state from one episode into the next (random's generator)."""
+    return target in BASELINES and baseline_class(target).carries_over_episodes
+
+
+def _run_episodes(
+    env_id: str, env_kwargs: Mapping[str, Any], target: str, agent_seed: int, seeds: Sequence[int]
+) -> list[tuple[dict[str, Any], list[float], float, int]]:
+    """One task of :func:`evaluate_agents`: the agent of ``target`` on ``seeds``, in order, in a fresh env.
+
+    Returns, per episode, :func:`run_episode`'s row and map-error trace and
+    the planning seconds and plans it took (agents that plan and time it).
+    """
+    env = gym.make(env_id, **env_kwargs)
+    try:
+        agent = build_agent(target, env, env_id, env_kwargs, agent_seed)
+        out = []
+        for episode_seed in seeds:
+            times = getattr(agent, "planning_times", None)
+            before = len(times) if times is not None else 0
+            row, trace = run_episode(agent, env, int(episode_seed))
+            times = getattr(agent, "planning_times", None)
+            new = times[before:] if times is not None else []
+            out.append((row, trace, float(sum(new)), len(new)))
+        return out
+    finally:
+        env.close()
+
+
 def _finite_or_none(value: float) -> float | None:
     return float(value) if value is not None and math.isfinite(value) else None
 
@@ -566,6 +598,7 @@ def evaluate_agents(
     *,
     verbose: bool = False,
     bootstrap: int = 0,
+    executor: Executor | None = None,
 ) -> tuple[list[dict[str, Any]], dict[str, Any]]:
     """Run every agent on the seeds ``seed … seed + episodes − 1``.
 
@@ -586,6 +619,9 @@ def evaluate_agents(
         Progress on stderr: a bar over all episodes and one line per agent.
     bootstrap : int
         Resamples of the bootstrap interval of the paired differences (0: t interval only).
+    executor : agents.parallel.Executor, optional
+        Where the episodes run (default: one after another in this process);
+        the rows are the same on every executor but for ``decision_time_ms``.
 
     Returns
     -------
@@ -602,37 +638,57 @@ def evaluate_agents(
         raise ValueError(f"episodes must be positive, got {episodes}")
     env_kwargs = dict(env_kwargs or {})
     seeds = [int(seed) + k for k in range(int(episodes))]
-    rows: list[dict[str, Any]] = []
-    agents_summary: dict[str, Any] = {}
+    executor = executor if executor is not None else Executor()
     labelled = agent_labels(agent_specs)
     for _, target in labelled:
         check_agent_spec(target)  # before any episode runs
     baselines = [label for label, target in labelled if target in BASELINES]
+    # tasks: runs of consecutive seeds of one agent; an agent whose state carries over between
+    # episodes (random's generator) gets all of its seeds in one task, as in a serial run
+    slots = executor.slots() if executor.kind != "serial" else 1
+    tasks: list[tuple[Any, ...]] = []
+    owner: list[int] = []
+    for number, (_, target) in enumerate(labelled):
+        for run in chunks(seeds, slots, together=_carries_over(target)):
+            tasks.append((env_id, env_kwargs, target, int(seed), run))
+            owner.append(number)
+    remaining = [owner.count(number) for number in range(len(labelled))]
+    collected: dict[int, list[tuple[dict[str, Any], list[float], float, int]]] = {}
+    started = time.perf_counter()
     progress = Progress(len(labelled) * len(seeds), f"{env_id}", enabled=verbose, unit="episodes")
+
+    def episodes_of(number: int) -> list[tuple[dict[str, Any], list[float], float, int]]:
+        return [item for index in sorted(collected) if owner[index] == number for item in collected[index]]
+
+    def arrived(index: int, result: list[tuple[dict[str, Any], list[float], float, int]]) -> None:
+        number = owner[index]
+        label = labelled[number][0]
+        collected[index] = result
+        for row, _, _, _ in result:
+            progress.update(1, f"{label} seed {row['seed']}: {row['final_map_error']:.3f} m")
+        remaining[number] -= 1
+        if remaining[number] == 0:  # the agent's last task: its line
+            done = episodes_of(number)
+            plans = sum(count for _, _, _, count in done)
+            planning = sum(seconds for _, _, seconds, _ in done) / plans if plans else math.nan
+            extra = f", {1e3 * planning:.2f} ms per plan" if math.isfinite(planning) else ""
+            mean = float(np.mean([row["final_map_error"] for row, _, _, _ in done]))
+            progress.write(f"{label}: {len(seeds)} episodes after {time.perf_counter() - started:.1f} s, "
+                           f"final map error {mean:.3f} m{extra}")  # fmt: skip
+
     with progress:
-        for spec, (label, target) in zip(agent_specs, labelled):
-            env = gym.make(env_id, **env_kwargs)
-            try:
-                agent = build_agent(target, env, env_id, env_kwargs, int(seed))
-                started = time.perf_counter()
-                agent_rows, traces = [], []
-                for episode, episode_seed in enumerate(seeds):
-                    row, trace = run_episode(agent, env, episode_seed)
-                    agent_rows.append({"agent": label, "episode": episode, **row})
-                    traces.append(trace)
-                    progress.update(1, f"{label} seed {episode_seed}: {row['final_map_error']:.3f} m")
-            finally:
-                env.close()
-            rows.extend(agent_rows)
-            entry: dict[str, Any] = {"spec": spec, "episodes": len(seeds)}
-            for metric in SUMMARY_METRICS:
-                entry[metric] = mean_ci([row[metric] for row in agent_rows])
-            entry["map_error_over_time"] = _curve(traces)
-            agents_summary[label] = entry
-            planning = getattr(agent, "mean_planning_time", None)
-            extra = f", {1e3 * planning:.2f} ms per plan" if planning is not None and math.isfinite(planning) else ""
-            progress.write(f"{label}: {len(seeds)} episodes in {time.perf_counter() - started:.1f} s, final map error "
-                           f"{entry['final_map_error']['mean']:.3f} m{extra}")  # fmt: skip
+        executor.map(_run_episodes, tasks, on_result=arrived)
+    rows: list[dict[str, Any]] = []
+    agents_summary: dict[str, Any] = {}
+    for number, (spec, (label, _)) in enumerate(zip(agent_specs, labelled)):
+        done = episodes_of(number)
+        agent_rows = [{"agent": label, "episode": episode, **row} for episode, (row, _, _, _) in enumerate(done)]
+        rows.extend(agent_rows)
+        entry: dict[str, Any] = {"spec": spec, "episodes": len(seeds)}
+        for metric in SUMMARY_METRICS:
+            entry[metric] = mean_ci([row[metric] for row in agent_rows])
+        entry["map_error_over_time"] = _curve([trace for _, trace, _, _ in done])
+        agents_summary[label] = entry
     summary = {
         "schema_version": SCHEMA_VERSION,
         "env_id": env_id,
@@ -778,6 +834,7 @@ def _parser() -> argparse.ArgumentParser:
     parser.add_argument("--bootstrap", type=int, default=0, metavar="N",
                         help="also a percentile bootstrap interval of the paired differences, N resamples (default 0: none)")  # fmt: skip
     parser.add_argument("--quiet", action="store_true", help="no progress on stderr")
+    add_executor_arguments(parser)
     return parser
 
 
@@ -801,9 +858,10 @@ def main(argv: Sequence[str] | None = None) -> int:
             check_agent_spec(target)
     except (ValueError, FileNotFoundError) as error:
         parser.error(str(error))
+    executor = executor_from_arguments(args, parser)
     started = time.perf_counter()
     rows, summary = evaluate_agents(specs, args.episodes, args.seed, args.env, env_kwargs, verbose=not args.quiet,
-                                    bootstrap=args.bootstrap)  # fmt: skip
+                                    bootstrap=args.bootstrap, executor=executor)  # fmt: skip
     paths = write_outputs(rows, summary, args.out)
     print(f"{args.env}, {args.episodes} episodes per agent, seeds {args.seed}..{args.seed + args.episodes - 1}; "
           "mean ± 95% CI half-width\n")  # fmt: skip
@@ -811,7 +869,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     paired = paired_table(summary)
     if paired:
         print(f"\n{paired}")
-    print(f"\nwrote {', '.join(str(path) for path in paths.values())} in {time.perf_counter() - started:.1f} s")
+    print(f"\nwrote {', '.join(str(path) for path in paths.values())} in {time.perf_counter() - started:.1f} s "
+          f"({executor.kind}: {len(executor.placements)} tasks on {len(set(executor.placements))} processes or nodes)")  # fmt: skip
     return 0
 
 

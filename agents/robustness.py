@@ -42,6 +42,9 @@ import numpy as np
 import seif_gym  # noqa: F401  (registers the environments)
 from agents.baselines import BASELINES, Agent
 from agents.evaluate import agent_labels, build_agent, check_agent_spec, run_episode
+from agents.parallel import Executor, chunks
+from agents.parallel import add_arguments as add_executor_arguments
+from agents.parallel import from_arguments as executor_from_arguments
 from seif_gym.envs.explore import SeifExploreEnv
 from seif_gym.episodes import Episode, EpisodeRecorder
 from seif_gym.evaluate import (
@@ -97,6 +100,7 @@ def evaluate(
     nees_every: int = 1,
     episode_dir: str | Path | None = None,
     verbose: bool = False,
+    executor: Executor | None = None,
 ) -> tuple[list[dict[str, Any]], list[dict[str, np.ndarray]]]:
     """Record one episode per (policy, layout, seed) and replay it through every filter.
 
@@ -120,6 +124,11 @@ def evaluate(
         Where to save the recorded episodes (``POLICY_LAYOUT_SEED.npz``).
     verbose : bool
         Progress on stderr, and one line per episode.
+    executor : agents.parallel.Executor, optional
+        Where the episodes are recorded and replayed (default: one after
+        another in this process). The rows and curves are the same on every
+        executor but for the measured times (``us_per_step_*``,
+        ``step_seconds``); the episodes are saved by this process.
 
     Returns
     -------
@@ -152,41 +161,86 @@ def evaluate(
         episode_dir.mkdir(parents=True, exist_ok=True)
     template = gym.make(env_id, **env_kwargs)
     try:
-        warm_up(specs, cast(SeifExploreEnv, template.unwrapped).config, int(nees_every))
+        config = dict(cast(SeifExploreEnv, template.unwrapped).config)
     finally:
         template.close()
+    executor = executor if executor is not None else Executor()
+    slots = executor.slots() if executor.kind != "serial" else 1
+    # tasks: runs of consecutive seeds of one (policy, layout); random is seeded per episode, so every
+    # agent here starts each episode afresh and the runs can go anywhere
+    tasks: list[tuple[Any, ...]] = []
+    for label, target in labelled:
+        for layout in layouts:
+            for run in chunks([int(seed) for seed in seeds], slots):
+                tasks.append(
+                    (env_id, env_kwargs, config, label, target, layout, run, int(steps), specs, int(nees_every))
+                )
 
-    rows: list[dict[str, Any]] = []
-    series: list[dict[str, np.ndarray]] = []
+    collected: dict[int, list[tuple[Episode, list[dict[str, Any]], list[dict[str, np.ndarray]], float, float]]] = {}
     total = len(labelled) * len(layouts) * len(seeds)
     with Progress(total, f"{env_id} robustness", enabled=verbose, unit="episodes") as progress:
-        for label, target in labelled:
-            for layout in layouts:
-                env = EpisodeRecorder(gym.make(env_id, layout=layout, max_episode_steps=int(steps), **env_kwargs))
-                try:
-                    agent = (
-                        None
-                        if target == "random"
-                        else build_agent(target, env, env_id, {**env_kwargs, "layout": layout}, 0)
-                    )
-                    for seed in seeds:
-                        started = time.perf_counter()
-                        policy = build_agent("random", env, env_id, env_kwargs, int(seed)) if agent is None else agent
-                        episode = record_episode(env, policy, int(seed))
-                        recorded = time.perf_counter() - started
-                        if episode_dir is not None:
-                            episode.save(episode_dir / f"{label}_{layout}_{int(seed)}.npz")
-                        episode_rows, episode_series = score_episode(episode, specs, policy=label,
-                                                                     nees_every=int(nees_every))  # fmt: skip
-                        rows += episode_rows
-                        series += episode_series
-                        progress.update(1, f"{label} {layout} seed {int(seed)}")
-                        progress.write(f"{label:>12} {layout:>9} seed {int(seed):>4}: {episode.steps} steps recorded in "
-                                       f"{recorded:.1f} s, {len(specs)} filters replayed in "
-                                       f"{time.perf_counter() - started - recorded:.1f} s")  # fmt: skip
-                finally:
-                    env.close()
+
+        def arrived(index: int, result: list[tuple[Episode, list[dict[str, Any]], Any, float, float]]) -> None:
+            collected[index] = result
+            label, layout = tasks[index][3], tasks[index][5]
+            for episode, _, _, recorded, replayed in result:
+                seed = int(episode.seed) if episode.seed is not None else -1
+                if episode_dir is not None:
+                    episode.save(Path(episode_dir) / f"{label}_{layout}_{seed}.npz")
+                progress.update(1, f"{label} {layout} seed {seed}")
+                progress.write(f"{label:>12} {layout:>9} seed {seed:>4}: {episode.steps} steps recorded in "
+                               f"{recorded:.1f} s, {len(specs)} filters replayed in {replayed:.1f} s")  # fmt: skip
+
+        executor.map(_record_and_score, tasks, on_result=arrived)
+    rows: list[dict[str, Any]] = []
+    series: list[dict[str, np.ndarray]] = []
+    for index in range(len(tasks)):
+        for _, episode_rows, episode_series, _, _ in collected[index]:
+            rows += episode_rows
+            series += episode_series
     return rows, series
+
+
+#: Warm-ups done in this process: (filters, env config, nees_every).
+_WARMED: set[str] = set()
+
+
+def _record_and_score(
+    env_id: str,
+    env_kwargs: Mapping[str, Any],
+    config: Mapping[str, Any],
+    label: str,
+    target: str,
+    layout: str,
+    seeds: Sequence[int],
+    steps: int,
+    specs: Sequence[FilterSpec],
+    nees_every: int,
+) -> list[tuple[Episode, list[dict[str, Any]], list[dict[str, np.ndarray]], float, float]]:
+    """One task of :func:`evaluate`: record ``target``'s episodes on ``seeds`` and replay each through ``specs``.
+
+    Returns, per seed, the episode, its rows and curves
+    (:func:`seif_gym.evaluate.score_episode`) and the seconds spent
+    recording and replaying.
+    """
+    key = repr((list(specs), sorted(config.items()), nees_every))
+    if key not in _WARMED:  # compile / load the kernels before anything is timed, once per process
+        warm_up(specs, config, nees_every)
+        _WARMED.add(key)
+    env = EpisodeRecorder(gym.make(env_id, layout=layout, max_episode_steps=steps, **env_kwargs))
+    try:
+        agent = None if target == "random" else build_agent(target, env, env_id, {**env_kwargs, "layout": layout}, 0)
+        out = []
+        for seed in seeds:
+            started = time.perf_counter()
+            policy = build_agent("random", env, env_id, env_kwargs, int(seed)) if agent is None else agent
+            episode = record_episode(env, policy, int(seed))
+            recorded = time.perf_counter() - started
+            episode_rows, episode_series = score_episode(episode, specs, policy=label, nees_every=nees_every)
+            out.append((episode, episode_rows, episode_series, recorded, time.perf_counter() - started - recorded))
+        return out
+    finally:
+        env.close()
 
 
 # -- command line -----------------------------------------------------------------------------------
@@ -218,6 +272,7 @@ def _parser() -> argparse.ArgumentParser:
     parser.add_argument("--out", default="eval/robustness", help="output folder (default eval/robustness)")
     parser.add_argument("--no-save-episodes", action="store_true", help="do not save the recorded episodes")
     parser.add_argument("--quiet", action="store_true", help="no progress on stderr")
+    add_executor_arguments(parser)
     return parser
 
 
@@ -246,13 +301,14 @@ def main(argv: Sequence[str] | None = None) -> int:
     except (ValueError, FileNotFoundError) as error:
         parser.error(str(error))
     seeds = list(range(args.seed, args.seed + args.seeds))
+    executor = executor_from_arguments(args, parser)
     out = Path(args.out)
     limit_blas_threads(1)
     started = time.perf_counter()
     rows, series = evaluate(
         policies, layouts, seeds, args.steps, specs,
         env_id=args.env, env_kwargs=env_kwargs, nees_every=args.nees_every,
-        episode_dir=None if args.no_save_episodes else out / "episodes", verbose=not args.quiet,
+        episode_dir=None if args.no_save_episodes else out / "episodes", verbose=not args.quiet, executor=executor,
     )  # fmt: skip
     wall = time.perf_counter() - started
     config = {
@@ -260,6 +316,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         "policies": policies, "layouts": layouts, "seeds": seeds, "steps": args.steps,
         "filters": [{"label": s.label, "filter": s.filter, "options": dict(s.options)} for s in specs],
         "env": args.env, "env_kwargs": env_kwargs, "nees_every": args.nees_every, "wall_seconds": wall,
+        "executor": executor.describe(),
     }  # fmt: skip
     paths = write_outputs(rows, series, out, config)
     print(f"{args.env}: policies {args.policies}; layouts {','.join(layouts)}; seeds {seeds[0]}..{seeds[-1]}; "

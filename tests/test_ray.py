@@ -9,6 +9,7 @@ fail.
 from __future__ import annotations
 
 import csv
+import json
 import os
 import shutil
 import subprocess
@@ -32,8 +33,11 @@ from ray.cluster_utils import Cluster
 
 import seif_gym  # noqa: F401
 from agents import make_agent
+from agents.evaluate import evaluate_agents
+from agents.parallel import Executor
 from agents.rllib_agent import BeliefRLModule, RLlibAgent, module_checkpoint
 from agents.rllib_train import PROGRESS_COLUMNS, build_config, make_env, stop_algorithm, train
+from agents.robustness import evaluate as robustness
 
 LOOPBACK = "127.0.0.1"
 #: One iteration's worth of steps: 2 runners x 2 envs x 16 steps.
@@ -273,3 +277,54 @@ def test_seif_gym_and_agents_import_without_ray():
         "assert 'ray' not in sys.modules, sorted(m for m in sys.modules if m.startswith('ray'))"
     )
     subprocess.run([sys.executable, "-c", code], check=True, cwd=Path(__file__).resolve().parents[1])
+
+
+# -- the harnesses on the cluster (agents.parallel) ----------------------------------------------------
+#: Measured times: the only columns allowed to differ from a serial run's.
+TIMED_ROWS = ("decision_time_ms", "us_per_step_mean", "us_per_step_median")
+
+
+def _untimed(rows):
+    return [{key: value for key, value in row.items() if key not in TIMED_ROWS} for row in rows]
+
+
+def _alive_nodes():
+    return {node["NodeID"] for node in ray.nodes() if node["Alive"]}
+
+
+def test_robustness_harness_on_two_nodes_equals_serial(cluster):
+    arguments = (["random", "frontier"], ["uniform"], [0, 1, 2, 3], 12, ["seif-k4", "ekf"])
+    serial_rows, serial_series = robustness(*arguments, env_id="SeifExplore-v1")
+    executor = Executor(ray=cluster.address)
+    rows, series = robustness(*arguments, env_id="SeifExplore-v1", executor=executor)
+    assert len(rows) == 2 * 4 * 2 and _untimed(rows) == _untimed(serial_rows)
+    for ours, theirs in zip(series, serial_series):
+        for key in ours:
+            if key != "step_seconds":
+                np.testing.assert_array_equal(ours[key], theirs[key])
+    assert executor.slots() == 2 and len(executor.placements) == 8  # one seed per task: 2 policies x 4 seeds
+    assert set(executor.placements) == _alive_nodes(), "the tasks should run on both nodes"
+
+
+def test_evaluate_agents_on_two_nodes_equals_serial(cluster):
+    kwargs = {"max_episode_steps": 15}
+    serial_rows, serial_summary = evaluate_agents(["random", "revisit"], 4, 20, "SeifExplore-v1", kwargs)
+    executor = Executor(ray=cluster.address)
+    rows, summary = evaluate_agents(["random", "revisit"], 4, 20, "SeifExplore-v1", kwargs, executor=executor)
+    assert _untimed(rows) == _untimed(serial_rows)
+    assert summary["paired"] == serial_summary["paired"]
+    assert len(executor.placements) == 1 + 4  # random: one task (its generator runs on); revisit: one per seed
+    assert set(executor.placements) <= _alive_nodes()
+
+
+def test_robustness_command_with_ray_address(cluster, tmp_path):
+    """``--ray ADDRESS`` from another process: it joins the cluster as a driver and leaves it running."""
+    command = [sys.executable, "-m", "agents.robustness", "--policies", "frontier", "--seeds", "2", "--steps", "8"]
+    command += ["--filters", "seif-k4", "--env", "SeifExplore-v1", "--out", str(tmp_path), "--quiet"]
+    done = subprocess.run([*command, "--ray", cluster.address], capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr[-3000:]
+    config = json.loads((tmp_path / "config.json").read_text())
+    assert config["executor"]["backend"] == "ray" and config["executor"]["ray"] == cluster.address
+    assert sum(config["executor"]["tasks_per_node"].values()) == 2
+    assert set(config["executor"]["tasks_per_node"]) <= _alive_nodes()
+    assert len(_alive_nodes()) == 2  # the cluster is still up for the other tests

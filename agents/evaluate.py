@@ -4,7 +4,7 @@ r"""Compare agents on the same seeds: ``python -m agents.evaluate``.
 
     python -m agents.evaluate --agents random,frontier,revisit,info_gain,runs/ppo/model.zip \
         --episodes 10 --seed 1000 [--env SeifExplore-v1] [--env-kwargs '{"layout": "loop"}'] [--out DIR] \
-        [--bootstrap 10000] [--quiet]
+        [--bootstrap 10000] [--workers N | --ray auto|ADDRESS] [--quiet]
 
 Every agent runs ``N`` episodes on the seeds ``S, S+1, …, S+N−1`` (the same
 for every agent; ``env.reset(seed=s)`` fixes the landmark layout, the start
@@ -16,7 +16,10 @@ normalisation is applied; labelled by the file's stem, or by its folder's
 name for ``model.zip`` / ``best_model.zip``) or ``rllib:CHECKPOINT``; any of
 them may be labelled ``LABEL=SPEC``. Every agent acts with ``deterministic=True``.
 ``--env-kwargs`` is a JSON object passed to ``gym.make`` (it may hold
-``max_episode_steps``).
+``max_episode_steps``). The episodes run one after another in this process,
+on ``--workers N`` local processes or as Ray tasks on a cluster (``--ray``;
+:mod:`agents.parallel`, ``docs/ray.md``), with the same rows but for the
+measured ``decision_time_ms``.
 
 The metrics come from the env's ``info`` (the ground truth is read here, by
 the evaluation, never by the agents). Written to ``--out`` (default

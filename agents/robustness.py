@@ -3,7 +3,8 @@ r"""The filter robustness harness with policies: ``python -m agents.robustness``
 .. code-block:: bash
 
     python -m agents.robustness --policies random,frontier,revisit,ppo=runs/ppo/model.zip \
-        --layouts uniform,loop --seeds 5 --seed 0 --steps 300 --out eval/robustness [--quiet]
+        --layouts uniform,loop --seeds 5 --seed 0 --steps 300 --out eval/robustness \
+        [--workers N | --ray auto|ADDRESS] [--quiet]
 
 For every (policy, layout, seed) one episode of ``--env`` (default
 ``SeifExplore-v0``, on which ``docs/robustness.md`` was measured; pass
@@ -23,7 +24,10 @@ Policies (``--policies``, comma separated; default every baseline of
 ``rllib:CHECKPOINT``, each optionally labelled ``LABEL=SPEC``
 (:func:`agents.evaluate.agent_label`). Every policy acts with
 ``deterministic=True``; ``random`` is seeded with the episode seed. Progress
-goes to stderr (``--quiet``: none).
+goes to stderr (``--quiet``: none). The episodes are recorded and replayed one
+after another in this process, on ``--workers N`` local processes or as Ray
+tasks on a cluster (``--ray``; :mod:`agents.parallel`, ``docs/ray.md``): the
+rows are the same but for the measured times.
 """
 
 from __future__ import annotations

@@ -54,10 +54,12 @@ import gymnasium as gym
 import numpy as np
 from numpy.typing import NDArray
 
-from seif_gym.envs.explore import SeifExploreEnv
+from seif_gym.envs.explore import SeifExploreEnv, make_models
 from seif_gym.metrics import filter_map_error  # the env's E_t: identical bits
 from seif_gym.slam import FILTERS, RangeBearingSensor, SlamFilter, VelocityMotionModel
 from seif_gym.slam.association import AssociationAudit, make_associator
+from seif_gym.slam.base import COMMON_OPTIONS
+from seif_gym.slam.noise_models import PerSecondVelocityMotionModel
 
 __all__ = ["Episode", "EpisodeRecorder", "ReplayResult", "replay", "episode_models"]
 
@@ -242,7 +244,7 @@ class Episode:
         rows = slice(int(self.offsets[t]), int(self.offsets[t + 1]))
         return self.ranges[rows], self.bearings[rows], self.ids[rows]
 
-    def models(self) -> tuple[VelocityMotionModel, RangeBearingSensor]:
+    def models(self) -> tuple[VelocityMotionModel | PerSecondVelocityMotionModel, RangeBearingSensor]:
         """The motion model and the sensor, built from :attr:`config` as the env builds them."""
         return episode_models(self.config)
 
@@ -301,16 +303,15 @@ class Episode:
             )
 
 
-def episode_models(config: Mapping[str, Any]) -> tuple[VelocityMotionModel, RangeBearingSensor]:
-    """``(motion, sensor)`` from env keyword arguments, exactly as ``SeifExploreEnv`` builds them."""
-    motion = VelocityMotionModel(alphas=tuple(config["motion_noise"]))
-    sensor = RangeBearingSensor(
-        sigma_range=config["sigma_range"],
-        sigma_bearing=config["sigma_bearing"],
-        max_range=config["sensor_range"],
-        fov=config["fov"],
-    )
-    return motion, sensor
+def episode_models(
+    config: Mapping[str, Any],
+) -> tuple[VelocityMotionModel | PerSecondVelocityMotionModel, RangeBearingSensor]:
+    """``(motion, sensor)`` from env keyword arguments, exactly as ``SeifExploreEnv`` builds them.
+
+    :func:`seif_gym.envs.explore.make_models`: Thrun's or the per-second
+    motion model, a constant or range-dependent range noise.
+    """
+    return make_models(config)
 
 
 # ---------------------------------------------------------------------------
@@ -522,7 +523,7 @@ ASSOCIATION_NEEDS: tuple[str, ...] = (
 
 
 #: The env's filter options an episode's config holds, and what an episode recorded before the option existed ran.
-_ENV_FILTER_OPTIONS: dict[str, Any] = {"max_active": None, "mean_recovery": "amortized"}
+_ENV_FILTER_OPTIONS: dict[str, Any] = {"max_active": None, "mean_recovery": "amortized", "innovation_gate": None}
 
 
 def _default_options(factory, config: Mapping[str, Any], options: dict[str, Any]) -> dict[str, Any]:
@@ -531,11 +532,9 @@ def _default_options(factory, config: Mapping[str, Any], options: dict[str, Any]
     An episode recorded by seif_gym 0.1 has no ``mean_recovery`` in its
     config: it ran Thrun's round-robin recovery, which is what it replays with.
     """
-    accepted = (
-        getattr(factory, "OPTIONS", None) if isinstance(factory, type) and issubclass(factory, SlamFilter) else None
-    )
-    if accepted is None:
+    if not (isinstance(factory, type) and issubclass(factory, SlamFilter)):
         return options
+    accepted = {**getattr(factory, "OPTIONS", {}), **COMMON_OPTIONS}  # every filter takes the common options
     added = dict(options)
     for name, recorded_before in _ENV_FILTER_OPTIONS.items():
         if name in accepted and name not in options and (name in config or recorded_before is not None):

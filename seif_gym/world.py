@@ -16,6 +16,7 @@ from numpy.typing import NDArray
 
 from seif_gym.slam._kernels import _wrap_float
 from seif_gym.slam.models import RangeBearingSensor, VelocityMotionModel, _visible_measurements, wrap_angle
+from seif_gym.slam.noise_models import PerSecondVelocityMotionModel
 
 __all__ = ["LAYOUTS", "WorldConfig", "World", "BatchedWorld", "make_landmarks"]
 
@@ -103,7 +104,7 @@ class World:
     def __init__(
         self,
         config: WorldConfig,
-        motion: VelocityMotionModel,
+        motion: VelocityMotionModel | PerSecondVelocityMotionModel,
         sensor: RangeBearingSensor,
         landmarks: FloatArray,
         initial_pose: FloatArray,

@@ -21,8 +21,18 @@ from seif_gym.slam import EIF, EKF, SEIF
 STEPS = 100
 
 #: (env id, env kwargs): the env's own filter of each is replayed and must match exactly.
+#: The per-second motion noise and range-dependent range noise (about what MRCLAM's calibration gives).
+CALIBRATED = (
+    ("motion_model", "per_second"),
+    ("motion_noise", (1e-4, 0.0, 2e-5, 4e-4, 0.01, 0.02, 0.0, 2e-4, 1e-4)),
+    ("range_noise", (0.05, 0.07, 0.2)),
+)
 CASES = [
     ("SeifExplore-v1", ()),
+    ("SeifExplore-v1", CALIBRATED),
+    ("SeifExploreLoop-v1", (*CALIBRATED, ("filter", "ekf"), ("innovation_gate", 9.0))),
+    ("SeifExploreLoop-v1", (("innovation_gate", 6.0),)),
+    ("SeifExploreLoop-v1", (*CALIBRATED, ("filter", "eseif"))),
     ("SeifExploreLoop-v1", (("max_active", 4),)),
     ("SeifExploreLoop-v1", (("filter", "eseif"),)),
     ("SeifExploreLoop-v1", (("data_association", "ml"),)),

@@ -176,6 +176,28 @@ class Calibration:
         """The calibrated :class:`~seif_gym.slam.noise_models.RangeDependentSensor`."""
         return RangeDependentSensor(self.range_slope, self.range_bounds, self.sigma_bearing, max_range, fov)
 
+    def env_kwargs(self) -> dict[str, Any]:
+        """``gym.make`` keyword arguments of a ``SeifExplore`` env with the calibrated noise.
+
+        The per-second motion noise (``motion_model="per_second"``), the
+        range-dependent range noise and the bearing noise; the simulated robot
+        executes its commands as commanded (the command correction and the
+        offsets are properties of the real robots' logs, not of the noise).
+
+        Examples
+        --------
+        >>> import gymnasium as gym, seif_gym
+        >>> from seif_gym.datasets.mrclam_calibration import Calibration
+        >>> kwargs = Calibration.load("docs/mrclam6_calibration.json").env_kwargs()  # doctest: +SKIP
+        >>> env = gym.make("SeifExplore-v1", **kwargs)  # doctest: +SKIP
+        """
+        return {
+            "motion_model": "per_second",
+            "motion_noise": (*self.forward, *self.turn, *self.lateral),
+            "range_noise": (self.range_slope, *self.range_bounds),
+            "sigma_bearing": self.sigma_bearing,
+        }
+
     def robot(self, robot: int) -> RobotCalibration:
         """The offsets of ``robot`` (zeros for a robot not calibrated)."""
         return self.robots.get(int(robot), RobotCalibration())

@@ -5,6 +5,7 @@ from __future__ import annotations
 import inspect
 import math
 import time
+from collections.abc import Mapping
 from dataclasses import asdict, dataclass
 from typing import TYPE_CHECKING, Any, NamedTuple
 
@@ -20,6 +21,7 @@ from seif_gym.observation import BeliefEncoder, ObservationConfig
 from seif_gym.slam import FILTERS, SEIF, RangeBearingSensor, SlamFilter, VelocityMotionModel, make_filter
 from seif_gym.slam.association import ASSOCIATOR_PRESETS, AssociationAudit, make_associator
 from seif_gym.slam.models import wrap_angle
+from seif_gym.slam.noise_models import PerSecondVelocityMotionModel, RangeDependentSensor
 from seif_gym.world import World, WorldConfig, make_landmarks
 
 if TYPE_CHECKING:
@@ -52,21 +54,42 @@ class Measurements(NamedTuple):
     ids: NDArray[np.int64]
 
 
+#: ``motion_model`` -> how many numbers its ``motion_noise`` holds.
+MOTION_MODELS: dict[str, int] = {"thrun": 6, "per_second": 9}
+
+
 @dataclass(frozen=True)
 class RobotConfig:
-    """Controls and motion noise of the robot (Thrun's velocity model)."""
+    """Controls and motion noise of the robot (the velocity motion model).
+
+    ``motion_model="thrun"``: Thrun's model, ``motion_noise`` = α1…α6
+    (:class:`~seif_gym.slam.models.VelocityMotionModel`). ``"per_second"``:
+    noise densities per second, so that the belief does not depend on the
+    time step, ``motion_noise`` = forward (3), turn (3), lateral (3)
+    (:class:`~seif_gym.slam.noise_models.PerSecondVelocityMotionModel`).
+    """
 
     dt: float = 0.25
     max_speed: float = 1.0
     max_turn_rate: float = 1.0
     motion_noise: tuple[float, ...] = (0.01, 0.001, 0.001, 0.01, 0.0005, 0.0005)
+    motion_model: str = "thrun"
 
     def __post_init__(self) -> None:
         for name in ("dt", "max_speed", "max_turn_rate"):
             _check_positive(name, getattr(self, name))
-        noise = np.asarray(self.motion_noise, dtype=float)
-        if noise.shape != (6,) or not np.all(np.isfinite(noise)) or np.any(noise < 0):
-            raise ValueError(f"motion_noise must be 6 non-negative numbers, got {self.motion_noise!r}")
+        if not isinstance(self.motion_model, str) or self.motion_model not in MOTION_MODELS:
+            raise ValueError(f"motion_model must be one of {tuple(MOTION_MODELS)}, got {self.motion_model!r}")
+        count = MOTION_MODELS[self.motion_model]
+        try:
+            noise = np.asarray(self.motion_noise, dtype=float)
+        except (TypeError, ValueError):
+            noise = np.empty(0)
+        if noise.shape != (count,) or not np.all(np.isfinite(noise)) or np.any(noise < 0):
+            raise ValueError(
+                f"motion_noise must be {count} non-negative numbers for motion_model={self.motion_model!r}, "
+                f"got {self.motion_noise!r}"
+            )
 
 
 @dataclass(frozen=True)
@@ -77,12 +100,67 @@ class SensorConfig:
     fov: float = math.pi
     sigma_range: float = 0.1
     sigma_bearing: float = math.radians(2.0)
+    #: ``(a, lo, hi)``: range noise ``clip(a r, lo, hi)`` (``RangeDependentSensor``) instead of ``sigma_range``.
+    range_noise: tuple[float, ...] | None = None
 
     def __post_init__(self) -> None:
         for name in ("sensor_range", "fov", "sigma_range", "sigma_bearing"):
             _check_positive(name, getattr(self, name))
         if self.fov > 2.0 * math.pi + 1e-12:
             raise ValueError(f"fov must be at most 2*pi, got {self.fov!r}")
+        if self.range_noise is not None:
+            try:
+                values = np.asarray(self.range_noise, dtype=float)
+            except (TypeError, ValueError):
+                values = np.empty(0)
+            if (
+                values.shape != (3,)
+                or not np.all(np.isfinite(values))
+                or not (values[0] > 0 and 0 < values[1] <= values[2])
+            ):
+                raise ValueError(
+                    f"range_noise must be (a, lo, hi) with a > 0 and 0 < lo <= hi, got {self.range_noise!r}"
+                )
+
+
+def make_models(
+    config: Mapping[str, Any],
+) -> tuple[VelocityMotionModel | PerSecondVelocityMotionModel, RangeBearingSensor]:
+    """The motion model and the sensor of the env keyword arguments ``config`` (as the env builds them).
+
+    One home for both the env and the replay of recorded episodes
+    (:func:`seif_gym.episodes.episode_models`): keys missing from ``config``
+    (episodes recorded before they existed) take the env's defaults.
+    """
+    robot = RobotConfig(
+        dt=float(config.get("dt", 0.25)),
+        motion_noise=tuple(config["motion_noise"]),
+        motion_model=config.get("motion_model", "thrun"),
+    )
+    range_noise = config.get("range_noise")
+    sensor_config = SensorConfig(
+        sensor_range=config["sensor_range"], fov=config["fov"], sigma_range=config["sigma_range"],
+        sigma_bearing=config["sigma_bearing"], range_noise=None if range_noise is None else tuple(range_noise),
+    )  # fmt: skip
+    motion: VelocityMotionModel | PerSecondVelocityMotionModel
+    if robot.motion_model == "per_second":
+        noise = robot.motion_noise
+        motion = PerSecondVelocityMotionModel(forward=noise[0:3], turn=noise[3:6], lateral=noise[6:9])
+    else:
+        motion = VelocityMotionModel(alphas=robot.motion_noise)
+    sensor: RangeBearingSensor
+    if sensor_config.range_noise is not None:
+        slope, low, high = sensor_config.range_noise
+        sensor = RangeDependentSensor(
+            range_slope=slope, range_bounds=(low, high), sigma_bearing=sensor_config.sigma_bearing,
+            max_range=sensor_config.sensor_range, fov=sensor_config.fov,
+        )  # fmt: skip
+    else:
+        sensor = RangeBearingSensor(
+            sigma_range=sensor_config.sigma_range, sigma_bearing=sensor_config.sigma_bearing,
+            max_range=sensor_config.sensor_range, fov=sensor_config.fov,
+        )  # fmt: skip
+    return motion, sensor
 
 
 @dataclass(frozen=True)
@@ -94,6 +172,8 @@ class FilterConfig:
     data_association: str = "known"
     mean_recovery: str = "wavefront"
     ml_association: str = "individual"
+    #: The filters' ``innovation_gate`` (squared Mahalanobis distance, 2 dof; ``None``: no gate).
+    innovation_gate: float | None = None
 
     def __post_init__(self) -> None:
         if self.filter not in FILTERS:
@@ -243,12 +323,15 @@ class SeifExploreEnv(gym.Env):
     | `sensor_range` | 5.0 | metres |
     | `fov` | π | full opening angle of the sensor, radians |
     | `sigma_range`, `sigma_bearing` | 0.1, 2° | measurement noise |
-    | `motion_noise` | (0.01, 0.001, 0.001, 0.01, 0.0005, 0.0005) | Thrun's α1…α6 |
+    | `motion_noise` | (0.01, 0.001, 0.001, 0.01, 0.0005, 0.0005) | Thrun's α1…α6; with `motion_model="per_second"` nine noise densities per second: forward, turn and lateral, each `(constant, per v², per ω²)` (`PerSecondVelocityMotionModel`) |
+    | `motion_model` | `"thrun"` | `"thrun"` (Thrun's model: its noise shrinks with `dt`) or `"per_second"` (dt-linear noise, as calibrated on real robots: `seif_gym.datasets.mrclam`) |
+    | `range_noise` | `None` | `(a, lo, hi)`: range noise `clip(a·r, lo, hi)` growing with range (`RangeDependentSensor`), used instead of `sigma_range` |
     | `dt` | 0.25 | seconds per step |
     | `max_speed`, `max_turn_rate` | 1.0, 1.0 | action scaling, m/s and rad/s |
     | `filter` | `"seif"` | any of `seif_gym.slam.FILTERS` |
     | `max_active` | 8 | SEIF's active-landmark bound `k` (ignored by the exact filters) |
     | `ml_association` | `"individual"` | with `data_association="ml"`: the associator preset (`seif_gym.slam.association.ASSOCIATOR_PRESETS`): `"individual"` (individual compatibility, as in 0.1; every version) or `"joint"` (joint compatibility with deferred lone loop closures: fewer false closures for the EKF; slower, and it discards lone revisits) |
+    | `innovation_gate` | `None` | every filter's gate: a measurement of a mapped landmark whose squared Mahalanobis distance exceeds it is left out of the update (13.8 = χ²₂ 99.9 %; real data's outliers) |
     | `mean_recovery` | `"wavefront"` | SEIF/ESEIF mean recovery: `"wavefront"` (`-v1`), Thrun's round-robin `"amortized"` (`-v0`), or `"exact"` (a sparse solve every step) |
     | `data_association` | `"known"` | `"known"`: the filter gets the true landmark ids; `"ml"`: maximum-likelihood association (`seif_gym.slam.Associator`: χ² gate, new-landmark threshold, mutual exclusion; SEIF covariances from the Markov blanket), so that agents and filters face association errors |
     | `reward` | `"map_error"` | or `"information_gain"` |
@@ -262,6 +345,12 @@ class SeifExploreEnv(gym.Env):
 
     ## Version History
 
+    * Keyword arguments `motion_model`, `range_noise` and `innovation_gate` (seif_gym 0.3): the
+      per-second motion noise and range-dependent range noise calibrated on
+      real robots (`Calibration.env_kwargs()` of
+      `seif_gym.datasets.mrclam_calibration`), and the filters' innovation
+      gate. Their defaults are the former models and no gate: every
+      registered id computes what it did.
     * v1 (seif_gym 0.2): the SEIF and ESEIF recover their mean with the
       wavefront recovery (`mean_recovery="wavefront"`), which keeps up with
       loop closures. `info["pose_nees"]` uses the filter's own pose covariance
@@ -284,6 +373,8 @@ class SeifExploreEnv(gym.Env):
         sigma_range: float = 0.1,
         sigma_bearing: float = math.radians(2.0),
         motion_noise: tuple[float, ...] = (0.01, 0.001, 0.001, 0.01, 0.0005, 0.0005),
+        motion_model: str = "thrun",
+        range_noise: tuple[float, float, float] | None = None,
         dt: float = 0.25,
         max_speed: float = 1.0,
         max_turn_rate: float = 1.0,
@@ -292,6 +383,7 @@ class SeifExploreEnv(gym.Env):
         data_association: str = "known",
         mean_recovery: str = "wavefront",
         ml_association: str = "individual",
+        innovation_gate: float | None = None,
         reward: str = "map_error",
         d_cap: float = 2.0,
         wall_penalty: float = 0.005,
@@ -308,14 +400,16 @@ class SeifExploreEnv(gym.Env):
             raise ValueError(f"render_mode must be one of {self.metadata['render_modes']} or None, got {render_mode!r}")
         self.world_config = WorldConfig(arena_size=arena_size, layout=layout, num_landmarks=num_landmarks)
         self.robot_config = RobotConfig(
-            dt=dt, max_speed=max_speed, max_turn_rate=max_turn_rate, motion_noise=tuple(motion_noise)
-        )
+            dt=dt, max_speed=max_speed, max_turn_rate=max_turn_rate, motion_noise=tuple(motion_noise),
+            motion_model=motion_model,
+        )  # fmt: skip
         self.sensor_config = SensorConfig(
-            sensor_range=sensor_range, fov=fov, sigma_range=sigma_range, sigma_bearing=sigma_bearing
-        )
+            sensor_range=sensor_range, fov=fov, sigma_range=sigma_range, sigma_bearing=sigma_bearing,
+            range_noise=None if range_noise is None else tuple(range_noise),
+        )  # fmt: skip
         self.filter_config = FilterConfig(
             filter=filter, max_active=max_active, data_association=data_association,
-            mean_recovery=mean_recovery, ml_association=ml_association,
+            mean_recovery=mean_recovery, ml_association=ml_association, innovation_gate=innovation_gate,
         )  # fmt: skip
         self.reward_config = RewardConfig(
             reward=reward, d_cap=d_cap, wall_penalty=wall_penalty, divergence_threshold=divergence_threshold
@@ -327,10 +421,7 @@ class SeifExploreEnv(gym.Env):
             std_scale=std_scale,
             coverage_resolution=coverage_resolution,
         )
-        self.motion = VelocityMotionModel(alphas=self.robot_config.motion_noise)
-        self.sensor = RangeBearingSensor(
-            sigma_range=sigma_range, sigma_bearing=sigma_bearing, max_range=sensor_range, fov=fov
-        )
+        self.motion, self.sensor = make_models({**asdict(self.robot_config), **asdict(self.sensor_config)})
         # validate the filter options once, at construction
         make_filter(self.filter_config.filter, self.motion, self.sensor, np.zeros(3), **self._filter_options())
         self.encoder = BeliefEncoder(arena_size, self.sensor, self.observation_config)
@@ -351,9 +442,12 @@ class SeifExploreEnv(gym.Env):
     # -- configuration ---------------------------------------------------------
     def _filter_options(self) -> dict[str, Any]:
         config = self.filter_config
+        options: dict[str, Any] = {}
+        if config.innovation_gate is not None:  # every filter takes it; left out, the filter is as before
+            options["innovation_gate"] = config.innovation_gate
         if config.filter not in ("seif", "eseif"):
-            return {}
-        return {"max_active": config.max_active, "mean_recovery": config.mean_recovery}
+            return options
+        return {"max_active": config.max_active, "mean_recovery": config.mean_recovery, **options}
 
     @property
     def config(self) -> dict[str, Any]:

@@ -11,8 +11,8 @@ episode's start (``reset``, and autoreset) runs the single env's own reset
 and loads its state into the arrays, so the two cannot drift apart.
 
 Supported in this compiled form: ``filter="seif"`` (wavefront recovery),
-``data_association="known"``, ``reward="map_error"`` (the defaults of every
-registered ``-v1`` id). Any other configuration runs as a
+``data_association="known"``, ``reward="map_error"``, Thrun's motion model
+and a constant range noise (the defaults of every registered ``-v1`` id). Any other configuration runs as a
 :class:`gymnasium.vector.SyncVectorEnv` of single envs (``backend ==
 "sync"``), with the same interface.
 
@@ -44,7 +44,7 @@ from seif_gym.metrics import map_error_kernel, nees_kernel
 from seif_gym.observation import encode_many
 from seif_gym.slam import _kernels
 from seif_gym.slam.batched import BatchedSEIF
-from seif_gym.slam.models import wrap_angle
+from seif_gym.slam.models import VelocityMotionModel, wrap_angle
 from seif_gym.slam.seif import DENSE_MARGINALS_UP_TO, SEIF, exact_marginal_covariance
 from seif_gym.world import BatchedWorld
 
@@ -144,7 +144,9 @@ class SeifExploreVectorEnv(VectorEnv):
         template = self.envs[0]
         config = template.filter_config
         compiled = (config.filter == "seif" and config.data_association == "known" and config.mean_recovery == "wavefront"
-                    and template.reward_config.reward == "map_error" and not template.measure_time)  # fmt: skip
+                    and template.reward_config.reward == "map_error" and not template.measure_time
+                    and config.innovation_gate is None and isinstance(template.motion, VelocityMotionModel)
+                    and not getattr(template.sensor, "range_dependent", False))  # fmt: skip
         #: ``"compiled"`` (batched kernels) or ``"sync"`` (a SyncVectorEnv of single envs, for other configurations)
         self.backend = "compiled" if compiled else "sync"
         self.single_observation_space = template.observation_space
@@ -158,8 +160,10 @@ class SeifExploreVectorEnv(VectorEnv):
             self._sync = SyncVectorEnv([functools.partial(_same, env) for env in limited], autoreset_mode=mode)
             return
         n = self.num_envs
-        self._world = BatchedWorld(n, template.world_config, template.motion, template.sensor)
-        self._filters = BatchedSEIF(n, template.world_config.num_landmarks, template.motion, template.sensor,
+        motion = template.motion
+        assert isinstance(motion, VelocityMotionModel)  # the compiled kernels are Thrun's model (checked above)
+        self._world = BatchedWorld(n, template.world_config, motion, template.sensor)
+        self._filters = BatchedSEIF(n, template.world_config.num_landmarks, motion, template.sensor,
                                     max_active=config.max_active)  # fmt: skip
         cells = template.encoder.coverage.shape[0]
         self._coverage = np.zeros((n, cells, cells), dtype=np.uint8)

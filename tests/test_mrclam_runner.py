@@ -40,7 +40,7 @@ def test_mean_controls_match_a_fine_average(simulated):
     log = simulated[1]
     edges = np.array([log.odometry.time[0], log.odometry.time[0] + 0.13, log.odometry.time[0] + 2.0,
                       log.odometry.time[0] + 7.77])  # fmt: skip
-    means = mr._mean_controls(log, TRUTH, edges)
+    means = mr.mean_controls(log, TRUTH, edges)
     fine = np.linspace(edges[0], edges[-1], 400001)[:-1] + 0.5 * (edges[-1] - edges[0]) / 400000
     k = np.searchsorted(log.odometry.time + TRUTH.command_latency, fine, side="right") - 1
     corrected = np.where((k >= 0)[:, None], TRUTH.correction.apply(log.odometry.controls)[np.maximum(k, 0)], 0.0)

@@ -58,6 +58,7 @@ already sorted). All arrays are read-only.
 Command line::
 
     python -m seif_gym.datasets.mrclam calibrate --data DIR [--robots 1 2 ...] [--out FILE]
+    python -m seif_gym.datasets.mrclam episodes --data DIR --calibration FILE --out DIR [--robots ...] [--dt S]
     python -m seif_gym.datasets.mrclam --data DIR --robot N|all --filter ekf|eif|seif|eseif --out OUT.npz \
         [--association known|ml] [--calibration FILE]
 
@@ -451,9 +452,10 @@ def load_all(path) -> dict[int, MrclamLog]:
 # Command line
 # ---------------------------------------------------------------------------
 def main(argv: Sequence[str] | None = None) -> int:
-    """``python -m seif_gym.datasets.mrclam [calibrate] ...``; returns the exit status.
+    """``python -m seif_gym.datasets.mrclam [calibrate | episodes] ...``; returns the exit status.
 
-    ``calibrate ...`` runs :func:`seif_gym.datasets.mrclam_calibration.main`;
+    ``calibrate ...`` runs :func:`seif_gym.datasets.mrclam_calibration.main`,
+    ``episodes ...`` :func:`seif_gym.datasets.mrclam_episodes.main`;
     anything else the runner, :func:`seif_gym.datasets.mrclam_runner.main`.
     """
     args = list(sys.argv[1:] if argv is None else argv)
@@ -461,6 +463,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         from seif_gym.datasets.mrclam_calibration import main as calibrate_main
 
         return calibrate_main(args[1:])
+    if args and args[0] == "episodes":
+        from seif_gym.datasets.mrclam_episodes import main as episodes_main
+
+        return episodes_main(args[1:])
     from seif_gym.datasets.mrclam_runner import main as run_main
 
     return run_main(args)

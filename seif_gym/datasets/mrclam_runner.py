@@ -166,7 +166,29 @@ def _make_filter(filter_name: str, calibration: Calibration, config: RunnerConfi
                                 **options)  # fmt: skip
 
 
-def _mean_controls(log: mrclam.MrclamLog, calibration: Calibration, edges: FloatArray) -> FloatArray:
+def thin_frame(
+    rows: IntArray, subjects: IntArray, now: float, last_used: dict[int, float], min_interval: float
+) -> tuple[IntArray, int]:
+    """The readings of one frame to use: each landmark at most once per ``min_interval`` s, one per frame.
+
+    ``rows`` index ``subjects``; ``last_used`` (landmark -> time) is updated
+    for the readings kept. Returns the kept rows (in their order) and how many
+    were left out by the interval.
+    """
+    thinned = 0
+    if min_interval > 0.0:
+        fresh = np.array([now - last_used.get(int(s), -np.inf) >= min_interval for s in subjects[rows].tolist()],
+                         dtype=bool)  # fmt: skip
+        thinned = int(len(rows) - np.count_nonzero(fresh))
+        rows = rows[fresh]
+    _, first = np.unique(subjects[rows], return_index=True)
+    rows = rows[np.sort(first)]
+    for s in subjects[rows].tolist():
+        last_used[s] = now
+    return rows, thinned
+
+
+def mean_controls(log: mrclam.MrclamLog, calibration: Calibration, edges: FloatArray) -> FloatArray:
     """Mean corrected control over each interval ``[edges[i], edges[i + 1]]`` (commands held, latency applied)."""
     odo = log.odometry
     corrected = calibration.correction.apply(odo.controls)
@@ -186,7 +208,7 @@ def _mean_controls(log: mrclam.MrclamLog, calibration: Calibration, edges: Float
     return np.diff(totals, axis=0) / np.diff(edges)[:, None]
 
 
-def _ground_truth(log: mrclam.MrclamLog, times: FloatArray, heading_offset: float, max_gap: float = 0.25) -> FloatArray:
+def ground_truth(log: mrclam.MrclamLog, times: FloatArray, heading_offset: float, max_gap: float = 0.25) -> FloatArray:
     gt = log.ground_truth
     truth = np.full((len(times), 3), np.nan)
     inside = (times >= gt.time[0]) & (times <= gt.time[-1])
@@ -242,9 +264,9 @@ def run_robot(
     positions = np.searchsorted(edges, frame_times[keep_frames])
     is_frame[positions] = True
     frame_at[positions] = keep_frames
-    controls = _mean_controls(log, calibration, edges)
+    controls = mean_controls(log, calibration, edges)
     dts = np.diff(edges)
-    initial = _ground_truth(log, np.array([start]), offsets.heading_offset)[0]
+    initial = ground_truth(log, np.array([start]), offsets.heading_offset)[0]
     if not np.all(np.isfinite(initial)):
         raise ValueError(f"robot {log.robot}: no ground truth at the first odometry time")
     filt = _make_filter(filter_name, calibration, config, initial)
@@ -275,14 +297,9 @@ def run_robot(
             rows = np.arange(frame_start[frame], frame_start[frame + 1])
             rows = rows[ranges_all[rows] <= config.max_range]
             now = float(edges[j])
-            if associator is None:
-                if config.min_interval > 0.0:  # each landmark at most once per min_interval
-                    fresh = np.array([now - last_used.get(int(s), -np.inf) >= config.min_interval
-                                      for s in subjects_all[rows].tolist()], dtype=bool)  # fmt: skip
-                    thinned += int(len(rows) - np.count_nonzero(fresh))
-                    rows = rows[fresh]
-                _, first = np.unique(subjects_all[rows], return_index=True)  # one reading per landmark and frame
-                rows = rows[np.sort(first)]
+            if associator is None:  # each landmark at most once per min_interval, one reading per frame
+                rows, left_out = thin_frame(rows, subjects_all, now, last_used, config.min_interval)
+                thinned += left_out
             elif (
                 now - last_frame < config.min_interval
             ):  # unknown landmarks: whole frames at most once per min_interval
@@ -312,7 +329,7 @@ def run_robot(
         landmark_ids = _subjects_of(filt, log, associator, landmark_ids)
     result = MrclamRun(
         robot=log.robot, filter_name=filter_name, time=times, pose=poses, pose_covariance=covariances,
-        truth=_ground_truth(log, times, offsets.heading_offset), landmarks=np.array(filt.landmarks),
+        truth=ground_truth(log, times, offsets.heading_offset), landmarks=np.array(filt.landmarks),
         landmark_ids=landmark_ids, seconds=seconds, readings=len(meas), used=used - filt.gated_measurements,
         gated=filt.gated_measurements, thinned=thinned,
     )  # fmt: skip

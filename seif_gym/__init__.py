@@ -13,6 +13,9 @@ id                         what changes (kwargs of ``SeifExploreEnv``)        ma
 ``SeifExploreClustered-v1`` ``layout="clustered"``: empty space between       400
                            clusters of landmarks
 ``SeifExploreLarge-v1``    40 m arena, 120 landmarks                         1000
+``SeifExploreMRCLAM-v0``   MRCLAM Dataset 6's landmarks, walls, robots,      1200
+                           camera and calibrated noise
+                           (``seif_gym/envs/mrclam.py``)
 ========================== ================================================ ==================
 
 Versions
@@ -32,6 +35,8 @@ Versions
 
 from gymnasium.envs.registration import register, registry
 
+from seif_gym.envs.mrclam import mrclam_kwargs
+
 __version__ = "0.2.0"
 
 ENTRY_POINT = "seif_gym.envs.explore:SeifExploreEnv"
@@ -45,6 +50,9 @@ _LAYOUTS: dict[str, tuple[dict, int]] = {
     "SeifExploreClustered": ({"layout": "clustered"}, 400),
     "SeifExploreLarge": ({"arena_size": 40.0, "num_landmarks": 120}, 1000),
 }
+
+#: The variants registered in every version (``{name}-v{version}``).
+VERSIONED_VARIANTS: tuple[str, ...] = tuple(_LAYOUTS)
 
 #: What each version pins beyond the layout (kwargs of ``SeifExploreEnv``).
 VERSIONS: dict[int, dict] = {
@@ -62,6 +70,12 @@ VARIANTS: dict[str, tuple[dict, int]] = {
     for name, (kwargs, steps) in _LAYOUTS.items()
 }
 
+# The env matched to the robots of the UTIAS MRCLAM dataset (seif_gym/envs/mrclam.py): the surveyed
+# landmarks, the walls, the robots' limits, the camera and the calibrated noise of Dataset 6, with the
+# current version's filter settings (its own version numbers start at 0, as Gymnasium's do; it has no
+# seif_gym 0.1 behaviour to keep). 1200 steps of 0.25 s: five minutes.
+VARIANTS["SeifExploreMRCLAM-v0"] = ({**mrclam_kwargs(), **VERSIONS[1]}, 1200)
+
 for _env_id, (_kwargs, _steps) in VARIANTS.items():
     if _env_id not in registry:
         register(
@@ -72,4 +86,12 @@ for _env_id, (_kwargs, _steps) in VARIANTS.items():
             max_episode_steps=_steps,
         )
 
-__all__ = ["VARIANTS", "VERSIONS", "LATEST_VERSION", "ENTRY_POINT", "VECTOR_ENTRY_POINT", "__version__"]
+__all__ = [
+    "VARIANTS",
+    "VERSIONED_VARIANTS",
+    "VERSIONS",
+    "LATEST_VERSION",
+    "ENTRY_POINT",
+    "VECTOR_ENTRY_POINT",
+    "__version__",
+]

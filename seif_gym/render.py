@@ -126,11 +126,23 @@ class Renderer:
         Its ``max_range`` and ``fov`` give the footprint.
     human : bool
         Also show each frame in a pyplot window (interactive mode).
+    extent : (float, float), optional
+        ``(width, height)`` of the walls when narrower than the square
+        (``WorldConfig.arena_extent``); outside them is drawn as outside.
     """
 
-    def __init__(self, arena_size: float, sensor: RangeBearingSensor, *, human: bool = False) -> None:
+    def __init__(
+        self,
+        arena_size: float,
+        sensor: RangeBearingSensor,
+        *,
+        human: bool = False,
+        extent: tuple[float, ...] | None = None,
+    ) -> None:
         self.arena_size = float(arena_size)
         self.half = 0.5 * self.arena_size
+        # the walled area (the whole square unless the env has narrower walls)
+        self.extent = (self.arena_size, self.arena_size) if extent is None else (float(extent[0]), float(extent[1]))
         self.max_range = float(sensor.max_range)
         self.fov = float(sensor.fov)
         self.human = bool(human)
@@ -159,8 +171,9 @@ class Renderer:
         ax.set_yticks([])
         for spine in ax.spines.values():
             spine.set_visible(False)
+        wall_width, wall_height = self.extent
         self._arena = Rectangle(
-            (-self.half, -self.half), self.arena_size, self.arena_size,
+            (-0.5 * wall_width, -0.5 * wall_height), wall_width, wall_height,
             facecolor=_ARENA, edgecolor="#111111", linewidth=2.5, zorder=0.5,
         )  # fmt: skip
         ax.add_patch(self._arena)

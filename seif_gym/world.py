@@ -22,7 +22,7 @@ __all__ = ["LAYOUTS", "WorldConfig", "World", "BatchedWorld", "make_landmarks"]
 
 FloatArray = NDArray[np.float64]
 
-#: Landmark layouts understood by :func:`make_landmarks`.
+#: Landmark layouts that :func:`make_landmarks` generates; ``"fixed"`` (the given ``landmark_positions``) is the other.
 LAYOUTS = ("uniform", "clustered", "loop")
 
 
@@ -33,35 +33,85 @@ class WorldConfig:
     Attributes
     ----------
     arena_size : float
-        Side of the square arena ``[-s/2, s/2]^2``, metres.
-    layout : {"uniform", "clustered", "loop"}
+        Side of the square arena ``[-s/2, s/2]^2``, metres (the frame of the
+        observation and the rendering).
+    layout : {"uniform", "clustered", "loop", "fixed"}
         How landmarks are placed (see :func:`make_landmarks`).
     num_landmarks : int
         Number of landmarks.
     wall_margin : float
         Landmarks keep this distance from the walls.
+    arena_extent : (float, float) or None
+        ``(width, height)`` of the walled area, centred in the square, each
+        at most ``arena_size``; ``None``: the walls are the square's.
+    landmark_positions : tuple of (x, y) or None
+        With ``layout="fixed"``: the landmarks, ``num_landmarks`` of them,
+        inside the walls.
     """
 
     arena_size: float = 20.0
     layout: str = "uniform"
     num_landmarks: int = 30
     wall_margin: float = 1.0
+    arena_extent: tuple[float, ...] | None = None
+    landmark_positions: tuple[tuple[float, ...], ...] | None = None
 
     def __post_init__(self) -> None:
         if not (isinstance(self.arena_size, (int, float)) and math.isfinite(self.arena_size) and self.arena_size > 0):
             raise ValueError(f"arena_size must be a positive number, got {self.arena_size!r}")
-        if self.layout not in LAYOUTS:
-            raise ValueError(f"layout must be one of {LAYOUTS}, got {self.layout!r}")
+        if self.layout not in (*LAYOUTS, "fixed"):
+            raise ValueError(f"layout must be one of {(*LAYOUTS, 'fixed')}, got {self.layout!r}")
         if isinstance(self.num_landmarks, bool) or not isinstance(self.num_landmarks, (int, np.integer)):
             raise TypeError(f"num_landmarks must be an int, got {type(self.num_landmarks).__name__}")
         if not 1 <= self.num_landmarks <= 10_000:
             raise ValueError(f"num_landmarks must be in [1, 10000], got {self.num_landmarks}")
         if not (isinstance(self.wall_margin, (int, float)) and 0 <= self.wall_margin < self.arena_size / 4):
             raise ValueError(f"wall_margin must be in [0, arena_size/4), got {self.wall_margin!r}")
+        if self.arena_extent is not None:
+            extent = _float_tuple(self.arena_extent, "arena_extent")
+            if len(extent) != 2 or not all(0 < side <= self.arena_size for side in extent):
+                raise ValueError(
+                    f"arena_extent must be (width, height), each in (0, arena_size], got {self.arena_extent!r}"
+                )
+            object.__setattr__(self, "arena_extent", extent)
+            if self.layout in ("clustered", "loop"):
+                raise ValueError(f"layout {self.layout!r} needs a square arena (arena_extent=None)")
+        if (self.layout == "fixed") != (self.landmark_positions is not None):
+            raise ValueError("landmark_positions must be given with layout='fixed', and only then")
+        if self.landmark_positions is not None:
+            try:
+                points = np.array(self.landmark_positions, dtype=np.float64)
+            except (TypeError, ValueError):
+                points = np.empty(0)
+            hx, hy = self.half_extent
+            if points.shape != (self.num_landmarks, 2) or not np.all(np.isfinite(points)):
+                raise ValueError(f"landmark_positions must be num_landmarks = {self.num_landmarks} pairs (x, y), "
+                                 f"got shape {points.shape}")  # fmt: skip
+            if np.any(np.abs(points[:, 0]) > hx) or np.any(np.abs(points[:, 1]) > hy):
+                raise ValueError("landmark_positions must lie inside the walls")
+            object.__setattr__(self, "landmark_positions", tuple(tuple(float(v) for v in p) for p in points))
 
     @property
     def half_size(self) -> float:
+        """Half the side of the square frame."""
         return 0.5 * float(self.arena_size)
+
+    @property
+    def half_extent(self) -> tuple[float, float]:
+        """``(half width, half height)`` of the walled area."""
+        if self.arena_extent is None:
+            return self.half_size, self.half_size
+        return 0.5 * float(self.arena_extent[0]), 0.5 * float(self.arena_extent[1])
+
+
+def _float_tuple(values: object, name: str) -> tuple[float, ...]:
+    try:
+        array = np.asarray(values, dtype=np.float64).ravel()
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must be numbers, got {values!r}") from None
+    if not np.all(np.isfinite(array)):
+        raise ValueError(f"{name} must be finite, got {values!r}")
+    return tuple(float(v) for v in array)
 
 
 def make_landmarks(config: WorldConfig, rng: np.random.Generator) -> FloatArray:
@@ -72,9 +122,20 @@ def make_landmarks(config: WorldConfig, rng: np.random.Generator) -> FloatArray:
       so that the space between clusters has nothing to see.
     * ``"loop"``: along a ring of radius 0.35 arena sizes with a radial
       jitter of 0.05 arena sizes; driving around it closes a loop.
+    * ``"fixed"``: ``config.landmark_positions`` (no draw).
+
+    With walls narrower than the square (``arena_extent``) ``"uniform"``
+    fills the walled area; ``"clustered"`` and ``"loop"`` need the square.
     """
-    h = config.half_size - config.wall_margin
     n = config.num_landmarks
+    if config.layout == "fixed":
+        return np.array(config.landmark_positions, dtype=np.float64)
+    if config.arena_extent is not None:
+        if config.layout != "uniform":
+            raise ValueError(f"layout {config.layout!r} needs a square arena (arena_extent=None)")
+        hx, hy = (half - config.wall_margin for half in config.half_extent)
+        return rng.uniform((-hx, -hy), (hx, hy), size=(n, 2))
+    h = config.half_size - config.wall_margin
     if config.layout == "uniform":
         return rng.uniform(-h, h, size=(n, 2))
     if config.layout == "clustered":
@@ -117,9 +178,9 @@ class World:
         self.pose = np.asarray(initial_pose, dtype=np.float64).copy()
 
     def inside(self, position: FloatArray) -> bool:
-        h = self.config.half_size
+        hx, hy = self.config.half_extent
         x, y = float(position[0]), float(position[1])
-        return -h <= x <= h and -h <= y <= h
+        return -hx <= x <= hx and -hy <= y <= hy
 
     def step(self, control: FloatArray, dt: float, rng: np.random.Generator) -> tuple[FloatArray, bool]:
         """Move the robot; returns the executed control and whether it hit the wall."""
@@ -129,9 +190,9 @@ class World:
         if hit_wall:
             executed = np.array([0.0, executed[1]])
         pose = self.motion.sample_trusted(self.pose, executed, dt, rng)
-        h = self.config.half_size
-        pose[0] = min(max(pose[0], -h), h)
-        pose[1] = min(max(pose[1], -h), h)
+        hx, hy = self.config.half_extent
+        pose[0] = min(max(pose[0], -hx), hx)
+        pose[1] = min(max(pose[1], -hy), hy)
         pose[2] = wrap_angle(float(pose[2]))
         self.pose = pose
         return executed, hit_wall

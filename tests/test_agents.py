@@ -149,8 +149,7 @@ def test_geometry_is_the_env_encoders_inverse(env_id: str) -> None:
     assert geometry.sensor_range == env.unwrapped.sensor.max_range
     # the landmark offsets decode to metres with this env's arena: a frontier agent of the default
     # geometry would misread SeifExploreLarge's by a factor of 2
-    expected = 40.0 if "Large" in env_id else 20.0
-    assert geometry.arena_size == expected
+    assert geometry.arena_size == seif_gym.VARIANTS[env_id][0].get("arena_size", 20.0)
 
 
 def test_a_vec_env_of_mixed_geometries_is_refused() -> None:

@@ -115,7 +115,9 @@ def test_a_calibration_file_configures_the_env():
 
     from seif_gym.datasets.mrclam_calibration import Calibration
 
-    calibration = Calibration.load(Path(__file__).resolve().parents[1] / "docs" / "mrclam6_calibration.json")
+    calibration = Calibration.load(
+        Path(__file__).resolve().parents[1] / "seif_gym" / "datasets" / "mrclam6_calibration.json"
+    )
     env = SeifExploreEnv(**calibration.env_kwargs())
     assert isinstance(env.motion, PerSecondVelocityMotionModel) and isinstance(env.sensor, RangeDependentSensor)
     assert env.motion.forward == calibration.forward and env.motion.lateral == calibration.lateral

@@ -32,6 +32,7 @@ CASES = [
     ("SeifExplore-v1", CALIBRATED),
     ("SeifExploreLoop-v1", (*CALIBRATED, ("filter", "ekf"), ("innovation_gate", 9.0))),
     ("SeifExploreLoop-v1", (("innovation_gate", 6.0),)),
+    ("SeifExploreMRCLAM-v0", ()),
     ("SeifExploreLoop-v1", (*CALIBRATED, ("filter", "eseif"))),
     ("SeifExploreLoop-v1", (("max_active", 4),)),
     ("SeifExploreLoop-v1", (("filter", "eseif"),)),

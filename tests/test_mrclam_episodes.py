@@ -85,7 +85,7 @@ def test_bad_arguments_raise(simulated):
 def test_dataset6_episodes_through_the_harness(tmp_path):
     from seif_gym.datasets.mrclam_episodes import main
 
-    calibration = Path(__file__).resolve().parents[1] / "docs" / "mrclam6_calibration.json"
+    calibration = Path(__file__).resolve().parents[1] / "seif_gym" / "datasets" / "mrclam6_calibration.json"
     assert main(["--data", str(DATA_DIR), "--calibration", str(calibration), "--out", str(tmp_path),
                  "--robots", "3", "--quiet"]) == 0  # fmt: skip
     episode = Episode.load(tmp_path / "robot3.npz")

@@ -75,6 +75,8 @@ __all__ = [
     "Calibration",
     "RobotCalibration",
     "calibrate",
+    "describe_world",
+    "DATASET6",
     "main",
     "simulate_logs",
     "summary",
@@ -96,6 +98,11 @@ CORRELATION_LAGS = (0.25, 1.0, 5.0)
 # ---------------------------------------------------------------------------
 # The calibration
 # ---------------------------------------------------------------------------
+#: The calibration of MRCLAM Dataset 6 shipped with the package (``python -m seif_gym.datasets.mrclam calibrate``
+#: on the five robots): read by ``SeifExploreMRCLAM`` and the MRCLAM commands' examples.
+DATASET6 = Path(__file__).with_name("mrclam6_calibration.json")
+
+
 @dataclass(frozen=True)
 class RobotCalibration:
     """What differs between robots.
@@ -144,6 +151,11 @@ class Calibration:
     diagnostics : dict
         JSON-ready figures (rates per horizon, outlier fractions, correlations, counts).
     source : dict
+    world : dict
+        What a simulator of the logs needs (:func:`describe_world`): the
+        surveyed landmarks, the area the robots drove in, their speed and
+        turn-rate limits, the camera's field of view and range, the frame
+        period. Empty for a calibration without logs.
         How it was made (dataset folder, robots, options).
     """
 
@@ -160,6 +172,7 @@ class Calibration:
     robots: dict[int, RobotCalibration] = field(default_factory=dict)
     diagnostics: dict[str, Any] = field(default_factory=dict)
     source: dict[str, Any] = field(default_factory=dict)
+    world: dict[str, Any] = field(default_factory=dict)
 
     # -- models -----------------------------------------------------------------
     def motion_model(self, noise_floor: float = 1e-9, corrected: bool = True):
@@ -188,7 +201,7 @@ class Calibration:
         --------
         >>> import gymnasium as gym, seif_gym
         >>> from seif_gym.datasets.mrclam_calibration import Calibration
-        >>> kwargs = Calibration.load("docs/mrclam6_calibration.json").env_kwargs()  # doctest: +SKIP
+        >>> kwargs = Calibration.load("seif_gym/datasets/mrclam6_calibration.json").env_kwargs()  # doctest: +SKIP
         >>> env = gym.make("SeifExplore-v1", **kwargs)  # doctest: +SKIP
         """
         return {
@@ -227,6 +240,7 @@ class Calibration:
             "robots": {str(r): vars(c).copy() for r, c in sorted(self.robots.items())},
             "diagnostics": self.diagnostics,
             "source": self.source,
+            "world": self.world,
         }
 
     @classmethod
@@ -255,6 +269,7 @@ class Calibration:
                 },  # fmt: skip
                 diagnostics=dict(data.get("diagnostics", {})),
                 source=dict(data.get("source", {})),
+                world=dict(data.get("world", {})),
             )
         except KeyError as error:
             raise ValueError(f"calibration data lacks the field {error.args[0]!r}") from error
@@ -700,7 +715,45 @@ def calibrate(
             "fit_offsets": bool(fit_offsets),
             "dataset": str(items[0].path),
         },  # fmt: skip
+        world=describe_world(items),
     )
+
+
+def describe_world(logs: Sequence[mrclam.MrclamLog]) -> dict[str, Any]:
+    """What a simulator of these logs needs, measured on them (``Calibration.world``).
+
+    Returns
+    -------
+    dict
+        ``landmarks``: the survey, ``[[x, y], ...]`` m, and ``subjects``;
+        ``bounds``: ``[x_min, x_max, y_min, y_max]`` of the robots' Vicon
+        positions, m; ``max_speed``, ``max_turn_rate``: the largest
+        commanded ``|v|`` (m/s) and ``|omega|`` (rad/s); ``fov``: twice the
+        99.9th percentile of ``|bearing|`` (the camera's opening, rad);
+        ``max_range``: the 99th percentile of the ranges read, m (beyond it
+        mostly misreads); ``frame_period``: the median time between camera
+        frames, s.
+    """
+    logs = list(logs)
+    if not logs:
+        raise ValueError("describe_world needs at least one log")
+    x = np.concatenate([log.ground_truth.x for log in logs])
+    y = np.concatenate([log.ground_truth.y for log in logs])
+    controls = np.concatenate([log.odometry.controls for log in logs])
+    bearings = np.concatenate([log.measurements.bearing for log in logs])
+    ranges = np.concatenate([log.measurements.range for log in logs])
+    periods = np.concatenate([np.diff(log.measurements.frames()[0]) for log in logs])
+    survey = logs[0].landmarks
+    return {
+        "landmarks": survey.positions.tolist(),
+        "subjects": survey.subject.tolist(),
+        "bounds": [float(x.min()), float(x.max()), float(y.min()), float(y.max())],
+        "max_speed": float(np.max(np.abs(controls[:, 0]))),
+        "max_turn_rate": float(np.max(np.abs(controls[:, 1]))),
+        "fov": float(2.0 * np.quantile(np.abs(bearings), 0.999)),
+        "max_range": float(np.quantile(ranges, 0.99)),
+        "frame_period": float(np.median(periods)) if len(periods) else math.nan,
+    }
 
 
 # ---------------------------------------------------------------------------

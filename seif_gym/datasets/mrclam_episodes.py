@@ -3,7 +3,7 @@ r"""Real MRCLAM logs as :class:`~seif_gym.episodes.Episode`\ s: every filter of 
 .. code-block:: bash
 
     python -m seif_gym.datasets.mrclam episodes --data ../shared/data/mrclam/MRCLAM_Dataset6 \
-        --calibration docs/mrclam6_calibration.json --out mrclam_episodes [--robots 1 2] [--dt 0.05]
+        --calibration seif_gym/datasets/mrclam6_calibration.json --out mrclam_episodes [--robots 1 2] [--dt 0.05]
     python -m seif_gym.evaluate --episodes mrclam_episodes --filters ekf,eif,seif-k8,eseif-k4 --out eval/mrclam
 
 :func:`log_to_episode` turns one robot's log into an episode of

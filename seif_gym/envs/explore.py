@@ -318,8 +318,10 @@ class SeifExploreEnv(gym.Env):
     | Argument | Default | Meaning |
     |---|---|---|
     | `arena_size` | 20.0 | side of the square arena, metres |
-    | `layout` | `"uniform"` | `"uniform"`, `"clustered"` or `"loop"` (`seif_gym.world.make_landmarks`) |
+    | `layout` | `"uniform"` | `"uniform"`, `"clustered"`, `"loop"` or `"fixed"` (`seif_gym.world.make_landmarks`) |
     | `num_landmarks` | 30 | landmarks in the arena |
+    | `arena_extent` | `None` | `(width, height)` of a walled rectangle centred in the square (each at most `arena_size`; the observation's frame stays the square) |
+    | `landmark_positions` | `None` | with `layout="fixed"`: the `num_landmarks` landmark positions `(x, y)` |
     | `sensor_range` | 5.0 | metres |
     | `fov` | π | full opening angle of the sensor, radians |
     | `sigma_range`, `sigma_bearing` | 0.1, 2° | measurement noise |
@@ -345,7 +347,10 @@ class SeifExploreEnv(gym.Env):
 
     ## Version History
 
-    * Keyword arguments `motion_model`, `range_noise` and `innovation_gate` (seif_gym 0.3): the
+    * v0 of `SeifExploreMRCLAM`: the MRCLAM Dataset 6 arena, its surveyed
+      landmarks, the robots' limits and camera, the calibrated noise (issue 11).
+    * Keyword arguments `arena_extent`, `landmark_positions` (and the layout
+      `"fixed"`), `motion_model`, `range_noise` and `innovation_gate` (seif_gym 0.3): the
       per-second motion noise and range-dependent range noise calibrated on
       real robots (`Calibration.env_kwargs()` of
       `seif_gym.datasets.mrclam_calibration`), and the filters' innovation
@@ -368,6 +373,8 @@ class SeifExploreEnv(gym.Env):
         arena_size: float = 20.0,
         layout: str = "uniform",
         num_landmarks: int = 30,
+        arena_extent: tuple[float, float] | None = None,
+        landmark_positions: tuple[tuple[float, float], ...] | None = None,
         sensor_range: float = 5.0,
         fov: float = math.pi,
         sigma_range: float = 0.1,
@@ -398,7 +405,10 @@ class SeifExploreEnv(gym.Env):
     ) -> None:
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(f"render_mode must be one of {self.metadata['render_modes']} or None, got {render_mode!r}")
-        self.world_config = WorldConfig(arena_size=arena_size, layout=layout, num_landmarks=num_landmarks)
+        self.world_config = WorldConfig(
+            arena_size=arena_size, layout=layout, num_landmarks=num_landmarks, arena_extent=arena_extent,
+            landmark_positions=landmark_positions,
+        )  # fmt: skip
         self.robot_config = RobotConfig(
             dt=dt, max_speed=max_speed, max_turn_rate=max_turn_rate, motion_noise=tuple(motion_noise),
             motion_model=motion_model,
@@ -472,8 +482,12 @@ class SeifExploreEnv(gym.Env):
         self._motion_rng, self._sensor_rng = motion_rng, sensor_rng
         config = self.world_config
         landmarks = make_landmarks(config, layout_rng)
-        h = 0.5 * config.half_size
-        start = np.array([*start_rng.uniform(-h, h, 2), start_rng.uniform(-math.pi, math.pi)])
+        if config.arena_extent is None:
+            h = 0.5 * config.half_size
+            start = np.array([*start_rng.uniform(-h, h, 2), start_rng.uniform(-math.pi, math.pi)])
+        else:  # the middle half of the walled area in each direction
+            hx, hy = (0.5 * half for half in config.half_extent)
+            start = np.array([*start_rng.uniform((-hx, -hy), (hx, hy)), start_rng.uniform(-math.pi, math.pi)])
         self.world = World(config, self.motion, self.sensor, landmarks, start)
         self.filter = make_filter(self.filter_config.filter, self.motion, self.sensor, start, **self._filter_options())
         ml = self.filter_config.data_association == "ml"
@@ -626,7 +640,10 @@ class SeifExploreEnv(gym.Env):
         from seif_gym.render import Renderer
 
         if self._renderer is None:
-            self._renderer = Renderer(self.world_config.arena_size, self.sensor, human=self.render_mode == "human")
+            self._renderer = Renderer(
+                self.world_config.arena_size, self.sensor, human=self.render_mode == "human",
+                extent=self.world_config.arena_extent,
+            )  # fmt: skip
         frame = self._renderer.draw(self)
         return frame if self.render_mode == "rgb_array" else None
 

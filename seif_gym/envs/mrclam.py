@@ -1,0 +1,114 @@
+"""``SeifExploreMRCLAM``: the SeifExplore env matched to the robots of the UTIAS MRCLAM dataset.
+
+## Description
+
+`SeifExploreEnv` with the world, robot and sensor of MRCLAM Dataset 6
+(Leung et al., IJRR 2011), as measured by `python -m seif_gym.datasets.mrclam
+calibrate` and shipped in `seif_gym/datasets/mrclam6_calibration.json`
+(`Calibration.world`, `describe_world`):
+
+| | simulated | from the logs |
+|---|---|---|
+| landmarks | the 15 surveyed positions (`layout="fixed"`) | `Landmark_Groundtruth.dat` |
+| walls | a rectangle around the robots' Vicon positions and the landmarks, 0.25 m margin (about 5.2 × 10.5 m) | `bounds` and the survey |
+| speed, turn rate | `max_speed` 0.086 m/s, `max_turn_rate` 0.57 rad/s | the largest commands |
+| camera | `fov` 1.18 rad, `sensor_range` 7.05 m | 99.9 % of the bearings, 99 % of the ranges |
+| motion noise | per second (`motion_model="per_second"`): forward, turn, lateral densities | calibrated on 20 s windows |
+| range / bearing noise | `clip(0.048 r, 0.070, 0.204)` m, 0.0081 rad | calibrated |
+| step | `dt` 0.25 s (the camera's frame period is 0.24 s) | |
+
+Coordinates are the dataset's shifted so that the walls are centred on the
+origin (`MRCLAM_ORIGIN` is the dataset point at the origin). Everything else
+(spaces, rewards, episode end, info) is `SeifExploreEnv`'s; the default
+filter is the SEIF with `k = 8`.
+
+What the simulator leaves out (docs/mrclam.md measures them on the logs): the
+real errors are time-correlated and heavy-tailed, barcodes are misread, the
+commands are biased (the logs need `CommandCorrection`; the simulated robot
+executes its commands with the calibrated noise only), and the camera sees
+other robots. The simulated sensor's noise is white, so the filter here uses
+the calibrated `Q` without the runner's inflation.
+
+## Version History
+
+* v0 (seif_gym 0.3): first version, with the filter settings of the
+  versioned variants' latest version (`-v1`: the wavefront mean recovery).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+from typing import Any
+
+__all__ = ["MRCLAM_CALIBRATION", "MRCLAM_ORIGIN", "mrclam_kwargs"]
+
+#: The calibration of Dataset 6 the variant is built from.
+MRCLAM_CALIBRATION = Path(__file__).resolve().parents[1] / "datasets" / "mrclam6_calibration.json"
+#: Margin between the walls and the outermost robot position or landmark, m.
+WALL_MARGIN = 0.25
+
+
+def _world(calibration: Path) -> tuple[dict[str, Any], dict[str, Any]]:
+    data = json.loads(Path(calibration).read_text())
+    world = data.get("world") or {}
+    missing = [
+        key for key in ("landmarks", "bounds", "max_speed", "max_turn_rate", "fov", "max_range") if key not in world
+    ]
+    if missing:
+        raise ValueError(f"{calibration}: the calibration has no world description ({', '.join(missing)}); "
+                         "recalibrate with python -m seif_gym.datasets.mrclam calibrate")  # fmt: skip
+    return data, world
+
+
+def _origin(world: dict[str, Any]) -> tuple[float, float, float, float]:
+    """``(x0, y0, width, height)``: the centre of the walls (dataset frame) and their size."""
+    x_min, x_max, y_min, y_max = (float(v) for v in world["bounds"])
+    for x, y in world["landmarks"]:
+        x_min, x_max, y_min, y_max = min(x_min, x), max(x_max, x), min(y_min, y), max(y_max, y)
+    width, height = x_max - x_min + 2 * WALL_MARGIN, y_max - y_min + 2 * WALL_MARGIN
+    return 0.5 * (x_min + x_max), 0.5 * (y_min + y_max), width, height
+
+
+def mrclam_kwargs(calibration: str | Path | None = None) -> dict[str, Any]:
+    """``SeifExploreEnv`` keyword arguments of the MRCLAM-matched env (module docstring).
+
+    Parameters
+    ----------
+    calibration : path, optional
+        A calibration file with a world description (default
+        :data:`MRCLAM_CALIBRATION`, Dataset 6).
+    """
+    data, world = _world(Path(calibration) if calibration is not None else MRCLAM_CALIBRATION)
+    x0, y0, width, height = _origin(world)
+    motion, sensor = data["motion_noise"], data["sensor_noise"]
+    slope, (low, high) = float(sensor["range_slope"]), sensor["range_bounds"]
+    return {
+        "arena_size": float(math.ceil(max(width, height))),
+        "arena_extent": (round(width, 3), round(height, 3)),
+        "layout": "fixed",
+        "num_landmarks": len(world["landmarks"]),
+        "landmark_positions": tuple((round(x - x0, 6), round(y - y0, 6)) for x, y in world["landmarks"]),
+        "max_speed": float(world["max_speed"]),
+        "max_turn_rate": float(world["max_turn_rate"]),
+        "dt": 0.25,
+        "sensor_range": round(float(world["max_range"]), 3),
+        "fov": round(float(world["fov"]), 4),
+        "motion_model": "per_second",
+        "motion_noise": tuple(float(v) for key in ("forward", "turn", "lateral") for v in motion[key]),
+        "range_noise": (slope, float(low), float(high)),
+        "sigma_range": float(high),
+        "sigma_bearing": float(sensor["sigma_bearing"]),
+    }
+
+
+def mrclam_origin(calibration: str | Path | None = None) -> tuple[float, float]:
+    """The dataset point at the env's origin (add it to env coordinates to get the dataset's)."""
+    _, world = _world(Path(calibration) if calibration is not None else MRCLAM_CALIBRATION)
+    x0, y0, _, _ = _origin(world)
+    return x0, y0
+
+
+#: The dataset point at the env's origin, for Dataset 6.
+MRCLAM_ORIGIN: tuple[float, float] = mrclam_origin()

@@ -45,7 +45,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
 from seif_gym.slam._validation import _as_real_scalar, as_finite_vector, as_nonnegative_scalar, as_positive_scalar
 from seif_gym.slam.models import wrap_angle
@@ -130,19 +130,21 @@ class AckermannLaserModel:
         )
 
     # -- validation ---------------------------------------------------------
-    def validate_control(self, control) -> FloatArray:
+    def validate_control(self, control: ArrayLike) -> FloatArray:
         """Return ``control`` as a finite ``(v_e, alpha)`` array with ``|alpha| <= max_steering``, or raise."""
         control = as_finite_vector(control, "control", 2)
         if abs(control[1]) > self.max_steering:
             raise ValueError(f"steering angle must satisfy |alpha| <= {self.max_steering}, got {control[1]}")
         return control
 
-    def _check(self, pose, control, dt) -> tuple[FloatArray, FloatArray, float]:
+    def _check(self, pose: ArrayLike, control: ArrayLike, dt: float) -> tuple[FloatArray, FloatArray, float]:
         return as_finite_vector(pose, "pose", 3), self.validate_control(control), as_positive_scalar(dt, "dt")
 
     # -- deterministic model ------------------------------------------------
-    def _terms(self, phi: float, v_e: float, alpha: float, dt: float):
-        """Shared intermediate quantities of the model and its Jacobians."""
+    def _terms(
+        self, phi: float, v_e: float, alpha: float, dt: float
+    ) -> tuple[float, float, float, float, float, float, float, float]:
+        """Shared intermediate quantities of the model and its Jacobians: ``(t, k, v_c, w, c, s, dx, dy)``."""
         L, H, a, b = self.wheelbase, self.encoder_offset, self.laser_ahead, self.laser_lateral
         t = math.tan(alpha)
         k = 1.0 - t * H / L
@@ -153,23 +155,23 @@ class AckermannLaserModel:
         dy = dt * (v_c * s + w * (a * c - b * s))
         return t, k, v_c, w, c, s, dx, dy
 
-    def displacement(self, pose, control, dt) -> FloatArray:
+    def displacement(self, pose: ArrayLike, control: ArrayLike, dt: float) -> FloatArray:
         """Pose increment ``delta`` (heading not wrapped)."""
         pose, control, dt = self._check(pose, control, dt)
         *_, w, _, _, dx, dy = self._terms(float(pose[2]), float(control[0]), float(control[1]), dt)
         return np.array([dx, dy, w * dt])
 
-    def predict(self, pose, control, dt) -> FloatArray:
+    def predict(self, pose: ArrayLike, control: ArrayLike, dt: float) -> FloatArray:
         """Noise-free next pose with the heading wrapped."""
         pose, control, dt = self._check(pose, control, dt)
         return self.predict_trusted(pose, control, dt)
 
-    def predict_trusted(self, pose, control, dt) -> FloatArray:
+    def predict_trusted(self, pose: FloatArray, control: FloatArray | tuple[float, float], dt: float) -> FloatArray:
         """:meth:`predict` without input checks."""
         *_, w, _, _, dx, dy = self._terms(float(pose[2]), float(control[0]), float(control[1]), float(dt))
         return np.array([pose[0] + dx, pose[1] + dy, wrap_angle(float(pose[2]) + w * float(dt))])
 
-    def jacobian_state(self, pose, control, dt) -> FloatArray:
+    def jacobian_state(self, pose: ArrayLike, control: ArrayLike, dt: float) -> FloatArray:
         """``G = d g / d pose`` (3, 3)."""
         pose, control, dt = self._check(pose, control, dt)
         *_, dx, dy = self._terms(float(pose[2]), float(control[0]), float(control[1]), dt)
@@ -193,28 +195,30 @@ class AckermannLaserModel:
             dx, dy, w,
         )  # fmt: skip
 
-    def jacobian_control(self, pose, control, dt) -> FloatArray:
+    def jacobian_control(self, pose: ArrayLike, control: ArrayLike, dt: float) -> FloatArray:
         """``V = d g / d (v_e, alpha)`` (3, 2)."""
         pose, control, dt = self._check(pose, control, dt)
         j = self._control_jacobian(float(pose[2]), float(control[0]), float(control[1]), dt)
         return np.array(j[:6]).reshape(3, 2)
 
-    def control_covariance(self, control, dt=None) -> FloatArray:
+    def control_covariance(self, control: ArrayLike, dt: float | None = None) -> FloatArray:
         """``M`` (2, 2) of the control error for a step of ``dt`` (default ``reference_dt``)."""
         v_e, _ = self.validate_control(control)
         scale = 1.0 if dt is None else self.reference_dt / as_positive_scalar(dt, "dt")
         return scale * np.diag([self.sigma_speed**2 + (self.sigma_speed_rel * v_e) ** 2, self.sigma_steering**2])
 
-    def noise_covariance(self, pose, control, dt) -> FloatArray:
+    def noise_covariance(self, pose: ArrayLike, control: ArrayLike, dt: float) -> FloatArray:
         """State-space noise ``R`` (3, 3) of the module docstring."""
         return self.linearize(pose, control, dt)[2]
 
-    def linearize(self, pose, control, dt) -> tuple[FloatArray, FloatArray, FloatArray]:
+    def linearize(self, pose: ArrayLike, control: ArrayLike, dt: float) -> tuple[FloatArray, FloatArray, FloatArray]:
         """``(delta, G, R)`` at ``pose`` for ``control`` over ``dt`` (module docstring)."""
         pose, control, dt = self._check(pose, control, dt)
         return self.linearize_trusted(pose, control, dt)
 
-    def linearize_trusted(self, pose, control, dt) -> tuple[FloatArray, FloatArray, FloatArray]:
+    def linearize_trusted(
+        self, pose: FloatArray, control: FloatArray, dt: float
+    ) -> tuple[FloatArray, FloatArray, FloatArray]:
         """:meth:`linearize` without input checks, for filters that validated the inputs."""
         dt = float(dt)
         v_e = float(control[0])
@@ -238,7 +242,7 @@ class AckermannLaserModel:
         return delta, jacobian, noise
 
     # -- stochastic model ---------------------------------------------------
-    def sample(self, pose, control, dt, rng: np.random.Generator) -> FloatArray:
+    def sample(self, pose: ArrayLike, control: ArrayLike, dt: float, rng: np.random.Generator) -> FloatArray:
         """Next true pose: the controls perturbed by ``N(0, M reference_dt / dt)``, then :meth:`predict`.
 
         The perturbed steering angle is clipped to ``max_steering``. The floor
@@ -249,7 +253,7 @@ class AckermannLaserModel:
             raise TypeError(f"rng must be a numpy.random.Generator, got {type(rng).__name__}")
         return self.sample_trusted(pose, control, dt, rng)
 
-    def sample_trusted(self, pose, control, dt, rng: np.random.Generator) -> FloatArray:
+    def sample_trusted(self, pose: FloatArray, control: FloatArray, dt: float, rng: np.random.Generator) -> FloatArray:
         """:meth:`sample` without input checks."""
         v_e, alpha = float(control[0]), float(control[1])
         scale = math.sqrt(self.reference_dt / float(dt))

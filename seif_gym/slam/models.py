@@ -14,11 +14,11 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from typing import Protocol, runtime_checkable
+from typing import Protocol, overload, runtime_checkable
 
 import numpy as np
 from numba import njit
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
 from seif_gym.slam._validation import (
     as_finite_array,
@@ -36,8 +36,19 @@ __all__ = [
 FloatArray = NDArray[np.float64]
 
 
-def wrap_angle(angle):
-    """Wrap angles to ``[-pi, pi)``; a float gives a float, anything else an array."""
+@overload
+def wrap_angle(angle: float) -> float: ...
+
+
+@overload
+def wrap_angle(angle: ArrayLike) -> FloatArray: ...
+
+
+def wrap_angle(angle: ArrayLike) -> float | FloatArray:
+    """Wrap angles to ``[-pi, pi)``; a float gives a float, anything else an array.
+
+    (An ``int`` is typed as a float, but gives a 0-d array.)
+    """
     # the modulo can round up to exactly 2 pi for inputs a hair below -pi: fold that back
     if isinstance(angle, float):
         folded = (angle + math.pi) % (2.0 * math.pi) - math.pi
@@ -62,14 +73,14 @@ class MotionModel(Protocol):
     """
 
     def linearize(
-        self, pose: FloatArray, control: FloatArray, dt: float
+        self, pose: ArrayLike, control: ArrayLike, dt: float
     ) -> tuple[FloatArray, FloatArray, FloatArray]: ...
 
-    def predict(self, pose: FloatArray, control: FloatArray, dt: float) -> FloatArray: ...
+    def predict(self, pose: ArrayLike, control: ArrayLike, dt: float) -> FloatArray: ...
 
-    def sample(self, pose: FloatArray, control: FloatArray, dt: float, rng: np.random.Generator) -> FloatArray: ...
+    def sample(self, pose: ArrayLike, control: ArrayLike, dt: float, rng: np.random.Generator) -> FloatArray: ...
 
-    def validate_control(self, control) -> FloatArray: ...
+    def validate_control(self, control: ArrayLike) -> FloatArray: ...
 
 
 def _sinc_and_derivative(a: float) -> tuple[float, float]:
@@ -122,11 +133,11 @@ class VelocityMotionModel:
         return f"VelocityMotionModel(alphas={self.alphas}, noise_floor={self.noise_floor})"
 
     # -- validation ---------------------------------------------------------
-    def validate_control(self, control) -> FloatArray:
+    def validate_control(self, control: ArrayLike) -> FloatArray:
         """Return ``control`` as a finite ``(v, omega)`` array or raise."""
         return as_finite_vector(control, "control", 2)
 
-    def _check(self, pose, control, dt) -> tuple[FloatArray, FloatArray, float]:
+    def _check(self, pose: ArrayLike, control: ArrayLike, dt: float) -> tuple[FloatArray, FloatArray, float]:
         return (
             as_finite_vector(pose, "pose", 3),
             self.validate_control(control),
@@ -141,17 +152,17 @@ class VelocityMotionModel:
         mid = theta + half
         return v * dt * math.cos(mid) * sinc, v * dt * math.sin(mid) * sinc, w * dt
 
-    def displacement(self, pose, control, dt) -> FloatArray:
+    def displacement(self, pose: ArrayLike, control: ArrayLike, dt: float) -> FloatArray:
         """Pose increment ``delta`` of ``SEIF.md`` (angle not wrapped)."""
         pose, control, dt = self._check(pose, control, dt)
         return np.array(self._displacement(pose[2], control[0], control[1], dt))
 
-    def predict(self, pose, control, dt) -> FloatArray:
+    def predict(self, pose: ArrayLike, control: ArrayLike, dt: float) -> FloatArray:
         """Noise-free next pose ``g(u, x)`` with the heading wrapped."""
         pose, control, dt = self._check(pose, control, dt)
         return self.predict_trusted(pose, control, dt)
 
-    def jacobian_state(self, pose, control, dt) -> FloatArray:
+    def jacobian_state(self, pose: ArrayLike, control: ArrayLike, dt: float) -> FloatArray:
         """``G = I + Delta``, the Jacobian of ``g`` with respect to the pose (3, 3)."""
         pose, control, dt = self._check(pose, control, dt)
         dx, dy, _ = self._displacement(pose[2], control[0], control[1], dt)
@@ -172,22 +183,22 @@ class VelocityMotionModel:
             ]
         )
 
-    def jacobian_control(self, pose, control, dt) -> FloatArray:
+    def jacobian_control(self, pose: ArrayLike, control: ArrayLike, dt: float) -> FloatArray:
         """``V = d g / d (v, omega)`` (3, 2), Thrun eq. 7.11."""
         pose, control, dt = self._check(pose, control, dt)
         return self._jacobian_control(pose[2], control[0], control[1], dt)
 
-    def control_covariance(self, control) -> FloatArray:
+    def control_covariance(self, control: ArrayLike) -> FloatArray:
         """``M = diag(a1 v^2 + a2 w^2, a3 v^2 + a4 w^2)`` (2, 2)."""
         v, w = self.validate_control(control)
         a1, a2, a3, a4, _, _ = self.alphas
         return np.diag([a1 * v * v + a2 * w * w, a3 * v * v + a4 * w * w])
 
-    def noise_covariance(self, pose, control, dt) -> FloatArray:
+    def noise_covariance(self, pose: ArrayLike, control: ArrayLike, dt: float) -> FloatArray:
         """State-space noise ``R = V M V^T + gamma term + floor`` (3, 3)."""
         return self.linearize(pose, control, dt)[2]
 
-    def linearize(self, pose, control, dt) -> tuple[FloatArray, FloatArray, FloatArray]:
+    def linearize(self, pose: ArrayLike, control: ArrayLike, dt: float) -> tuple[FloatArray, FloatArray, FloatArray]:
         """``(delta, G, R)`` at ``pose`` for ``control`` over ``dt``.
 
         Notes
@@ -199,7 +210,9 @@ class VelocityMotionModel:
         pose, control, dt = self._check(pose, control, dt)
         return self.linearize_trusted(pose, control, dt)
 
-    def linearize_trusted(self, pose, control, dt) -> tuple[FloatArray, FloatArray, FloatArray]:
+    def linearize_trusted(
+        self, pose: FloatArray, control: FloatArray, dt: float
+    ) -> tuple[FloatArray, FloatArray, FloatArray]:
         """:meth:`linearize` without input checks, for callers that validated them."""
         theta, v, w, dt = float(pose[2]), float(control[0]), float(control[1]), float(dt)
         half = 0.5 * w * dt
@@ -229,14 +242,14 @@ class VelocityMotionModel:
         return delta, jacobian, noise
 
     # -- stochastic model ---------------------------------------------------
-    def sample(self, pose, control, dt, rng: np.random.Generator) -> FloatArray:
+    def sample(self, pose: ArrayLike, control: ArrayLike, dt: float, rng: np.random.Generator) -> FloatArray:
         """Draw the next true pose (Thrun Table 5.3, ``sample_motion_model_velocity``)."""
         pose, control, dt = self._check(pose, control, dt)
         if not isinstance(rng, np.random.Generator):
             raise TypeError(f"rng must be a numpy.random.Generator, got {type(rng).__name__}")
         return self.sample_trusted(pose, control, dt, rng)
 
-    def sample_trusted(self, pose, control, dt, rng: np.random.Generator) -> FloatArray:
+    def sample_trusted(self, pose: FloatArray, control: FloatArray, dt: float, rng: np.random.Generator) -> FloatArray:
         """:meth:`sample` without input checks, for the simulator's inner loop."""
         v, w = float(control[0]), float(control[1])
         a1, a2, a3, a4, a5, a6 = self.alphas
@@ -248,14 +261,16 @@ class VelocityMotionModel:
         dx, dy, dth = self._displacement(float(pose[2]), v_hat, w_hat, dt)
         return np.array([pose[0] + dx, pose[1] + dy, wrap_angle(float(pose[2] + dth + gamma * dt))])
 
-    def predict_trusted(self, pose, control, dt) -> FloatArray:
+    def predict_trusted(self, pose: FloatArray, control: FloatArray, dt: float) -> FloatArray:
         """:meth:`predict` without input checks."""
         dx, dy, dth = self._displacement(float(pose[2]), float(control[0]), float(control[1]), float(dt))
         return np.array([pose[0] + dx, pose[1] + dy, wrap_angle(float(pose[2] + dth))])
 
 
 @njit(cache=True)
-def _visible_measurements(x, y, theta, landmarks, max_range, half_fov):
+def _visible_measurements(
+    x: float, y: float, theta: float, landmarks: FloatArray, max_range: float, half_fov: float
+) -> tuple[NDArray[np.int64], FloatArray]:
     """Indices and noise-free ``(range, bearing)`` of the visible landmarks (``sample``'s inner loop)."""
     n = landmarks.shape[0]
     indices = np.empty(n, dtype=np.int64)
@@ -326,13 +341,13 @@ class RangeBearingSensor:
             f"max_range={self.max_range}, fov={self.fov})"
         )
 
-    def measurement_covariances(self, ranges) -> FloatArray:
+    def measurement_covariances(self, ranges: ArrayLike) -> FloatArray:
         """Noise covariance ``Q`` of each measurement, shape (m, 2, 2): ``noise_covariance`` for all here."""
         ranges = as_finite_array(np.atleast_1d(ranges), "ranges", (None,))
         return np.broadcast_to(self.noise_covariance, (len(ranges), 2, 2)).copy()
 
     @staticmethod
-    def _landmarks(landmarks, name: str = "landmarks") -> FloatArray:
+    def _landmarks(landmarks: ArrayLike, name: str = "landmarks") -> FloatArray:
         if landmarks is None:
             raise TypeError(f"{name} must be an array of shape (n, 2), got None")
         array = np.asarray(landmarks, dtype=np.float64) if not isinstance(landmarks, (str, bytes)) else None
@@ -340,7 +355,7 @@ class RangeBearingSensor:
             array = array[None, :]
         return as_finite_array(array if array is not None else landmarks, name, (None, 2))
 
-    def predict(self, pose, landmarks) -> FloatArray:
+    def predict(self, pose: ArrayLike, landmarks: ArrayLike) -> FloatArray:
         """Expected ``(range, bearing)`` of each landmark, shape (m, 2)."""
         return self.predict_trusted(as_finite_vector(pose, "pose", 3), self._landmarks(landmarks))
 
@@ -354,7 +369,7 @@ class RangeBearingSensor:
         z[:, 1] = (np.arctan2(dy, dx) - pose[2] + np.pi) % (2.0 * np.pi) - np.pi
         return z
 
-    def jacobian(self, pose, landmarks) -> FloatArray:
+    def jacobian(self, pose: ArrayLike, landmarks: ArrayLike) -> FloatArray:
         """``H`` of ``SEIF.md`` for each landmark, shape (m, 2, 5)."""
         pose = as_finite_vector(pose, "pose", 3)
         landmarks = self._landmarks(landmarks)
@@ -369,7 +384,7 @@ class RangeBearingSensor:
         H[:, 1, 0], H[:, 1, 1], H[:, 1, 2], H[:, 1, 3], H[:, 1, 4] = dy / q, -dx / q, -1.0, -dy / q, dx / q
         return H
 
-    def inverse(self, pose, ranges, bearings) -> FloatArray:
+    def inverse(self, pose: ArrayLike, ranges: ArrayLike, bearings: ArrayLike) -> FloatArray:
         """Landmark positions ``(x + r cos(phi + theta), y + r sin(phi + theta))``, shape (m, 2)."""
         pose = as_finite_vector(pose, "pose", 3)
         ranges = as_finite_array(np.atleast_1d(ranges), "ranges", (None,))
@@ -385,7 +400,9 @@ class RangeBearingSensor:
         positions[:, 1] = pose[1] + ranges * np.sin(angle)
         return positions
 
-    def inverse_jacobians(self, pose, ranges, bearings) -> tuple[FloatArray, FloatArray]:
+    def inverse_jacobians(
+        self, pose: ArrayLike, ranges: ArrayLike, bearings: ArrayLike
+    ) -> tuple[FloatArray, FloatArray]:
         """Jacobians of :meth:`inverse` with respect to the pose (m, 2, 3) and to ``(r, phi)`` (m, 2, 2)."""
         pose = as_finite_vector(pose, "pose", 3)
         ranges = as_finite_array(np.atleast_1d(ranges), "ranges", (None,))
@@ -400,7 +417,7 @@ class RangeBearingSensor:
         wrt_measurement = np.stack([np.stack([c, -ranges * s], -1), np.stack([s, ranges * c], -1)], 1)
         return wrt_pose, wrt_measurement
 
-    def visible(self, pose, landmarks) -> NDArray[np.bool_]:
+    def visible(self, pose: ArrayLike, landmarks: ArrayLike) -> NDArray[np.bool_]:
         """Mask of the landmarks inside the range and field of view (no noise)."""
         return self._visible(self.predict(pose, landmarks))
 
@@ -411,7 +428,7 @@ class RangeBearingSensor:
         return mask
 
     def sample(
-        self, pose, landmarks, rng: np.random.Generator, ids=None
+        self, pose: ArrayLike, landmarks: ArrayLike, rng: np.random.Generator, ids: ArrayLike | None = None
     ) -> tuple[FloatArray, FloatArray, NDArray[np.int64]]:
         """Noisy ``(ranges, bearings, ids)`` of the visible landmarks.
 
@@ -429,7 +446,7 @@ class RangeBearingSensor:
         return self.sample_trusted(pose, landmarks, rng, ids)
 
     def sample_trusted(
-        self, pose, landmarks, rng: np.random.Generator, ids=None
+        self, pose: FloatArray, landmarks: FloatArray, rng: np.random.Generator, ids: ArrayLike | None = None
     ) -> tuple[FloatArray, FloatArray, NDArray[np.int64]]:
         """:meth:`sample` without input checks, for the simulator's inner loop."""
         visible, z = _visible_measurements(

@@ -32,7 +32,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
 from seif_gym.slam._validation import (
     _as_real_scalar,
@@ -41,7 +41,7 @@ from seif_gym.slam._validation import (
     as_nonnegative_scalar,
     as_positive_scalar,
 )
-from seif_gym.slam.models import RangeBearingSensor, _sinc_and_derivative, wrap_angle
+from seif_gym.slam.models import MotionModel, RangeBearingSensor, _sinc_and_derivative, wrap_angle
 
 __all__ = [
     "CommandCorrection",
@@ -54,7 +54,7 @@ __all__ = [
 FloatArray = NDArray[np.float64]
 
 
-def _density(value, name: str) -> tuple[float, float, float]:
+def _density(value: ArrayLike, name: str) -> tuple[float, float, float]:
     """A triple of non-negative noise densities ``(constant, per v^2, per omega^2)``."""
     array = as_finite_vector(value, name, 3)
     if np.any(array < 0.0):
@@ -67,15 +67,15 @@ class PerSecondVelocityMotionModel:
 
     Parameters
     ----------
-    forward : sequence of 3 floats, default (0, 0, 0)
+    forward : array_like of 3 floats, default (0, 0, 0)
         Density ``q_v = f0 + f1 v^2 + f2 omega^2`` of the forward-velocity
         noise, ``m^2/s`` (``f0`` in m^2/s, ``f1`` in s, ``f2`` in m^2 s/rad^2):
         the error of the distance driven in ``T`` seconds at constant
         controls has variance ``q_v T``.
-    turn : sequence of 3 floats, default (0, 0, 0)
+    turn : array_like of 3 floats, default (0, 0, 0)
         Density ``q_w = t0 + t1 v^2 + t2 omega^2`` of the turn-rate noise,
         ``rad^2/s``: the heading error of ``T`` seconds has variance ``q_w T``.
-    lateral : sequence of 3 floats, default (0, 0, 0)
+    lateral : array_like of 3 floats, default (0, 0, 0)
         Density ``q_l = l0 + l1 v^2 + l2 omega^2`` of a sideways slip, ``m^2/s``,
         perpendicular to the chord of the step.
     noise_floor : float, default 1e-9
@@ -112,9 +112,9 @@ class PerSecondVelocityMotionModel:
 
     def __init__(
         self,
-        forward=(0.0, 0.0, 0.0),
-        turn=(0.0, 0.0, 0.0),
-        lateral=(0.0, 0.0, 0.0),
+        forward: ArrayLike = (0.0, 0.0, 0.0),
+        turn: ArrayLike = (0.0, 0.0, 0.0),
+        lateral: ArrayLike = (0.0, 0.0, 0.0),
         noise_floor: float = 1e-9,
     ) -> None:
         self.forward = _density(forward, "forward")
@@ -129,15 +129,15 @@ class PerSecondVelocityMotionModel:
         )
 
     # -- validation -----------------------------------------------------------
-    def validate_control(self, control) -> FloatArray:
+    def validate_control(self, control: ArrayLike) -> FloatArray:
         """Return ``control`` as a finite ``(v, omega)`` array or raise."""
         return as_finite_vector(control, "control", 2)
 
-    def _check(self, pose, control, dt) -> tuple[FloatArray, FloatArray, float]:
+    def _check(self, pose: ArrayLike, control: ArrayLike, dt: float) -> tuple[FloatArray, FloatArray, float]:
         return as_finite_vector(pose, "pose", 3), self.validate_control(control), as_positive_scalar(dt, "dt")
 
     # -- noise ----------------------------------------------------------------
-    def noise_rates(self, control) -> FloatArray:
+    def noise_rates(self, control: ArrayLike) -> FloatArray:
         """``(q_v, q_w, q_l)`` at ``control``: variances per second (m^2/s, rad^2/s, m^2/s)."""
         v, w = self.validate_control(control)
         return np.array(self._rates(float(v), float(w)))
@@ -147,14 +147,14 @@ class PerSecondVelocityMotionModel:
         f, t, l_ = self.forward, self.turn, self.lateral
         return f[0] + f[1] * vv + f[2] * ww, t[0] + t[1] * vv + t[2] * ww, l_[0] + l_[1] * vv + l_[2] * ww
 
-    def control_covariance(self, control, dt) -> FloatArray:
+    def control_covariance(self, control: ArrayLike, dt: float) -> FloatArray:
         """``M_dt = diag(q_v, q_w) / dt`` (2, 2): covariance of the executed controls over one step."""
         q_v, q_w, _ = self.noise_rates(control)
         dt = as_positive_scalar(dt, "dt")
         return np.diag([q_v / dt, q_w / dt])
 
     # -- deterministic model --------------------------------------------------
-    def displacement(self, pose, control, dt) -> FloatArray:
+    def displacement(self, pose: ArrayLike, control: ArrayLike, dt: float) -> FloatArray:
         """Pose increment ``delta`` (angle not wrapped), as the velocity model's."""
         pose, control, dt = self._check(pose, control, dt)
         half = 0.5 * control[1] * dt
@@ -164,27 +164,27 @@ class PerSecondVelocityMotionModel:
             [control[0] * dt * math.cos(mid) * sinc, control[0] * dt * math.sin(mid) * sinc, control[1] * dt]
         )
 
-    def predict(self, pose, control, dt) -> FloatArray:
+    def predict(self, pose: ArrayLike, control: ArrayLike, dt: float) -> FloatArray:
         """Noise-free next pose with the heading wrapped."""
         pose, control, dt = self._check(pose, control, dt)
         return self.predict_trusted(pose, control, dt)
 
-    def predict_trusted(self, pose, control, dt) -> FloatArray:
+    def predict_trusted(self, pose: FloatArray, control: FloatArray, dt: float) -> FloatArray:
         """:meth:`predict` without input checks."""
         delta = self.linearize_trusted(pose, control, dt)[0]
         return np.array([pose[0] + delta[0], pose[1] + delta[1], wrap_angle(float(pose[2] + delta[2]))])
 
-    def jacobian_state(self, pose, control, dt) -> FloatArray:
+    def jacobian_state(self, pose: ArrayLike, control: ArrayLike, dt: float) -> FloatArray:
         """``G = I + Delta`` (3, 3)."""
         pose, control, dt = self._check(pose, control, dt)
         return self.linearize_trusted(pose, control, dt)[1]
 
-    def jacobian_control(self, pose, control, dt) -> FloatArray:
+    def jacobian_control(self, pose: ArrayLike, control: ArrayLike, dt: float) -> FloatArray:
         """``V = d g / d(v, omega)`` (3, 2), Thrun eq. 7.11."""
         pose, control, dt = self._check(pose, control, dt)
         return self._terms(float(pose[2]), float(control[0]), float(control[1]), dt)[2]
 
-    def noise_covariance(self, pose, control, dt) -> FloatArray:
+    def noise_covariance(self, pose: ArrayLike, control: ArrayLike, dt: float) -> FloatArray:
         """State-space noise ``R`` (3, 3) of the class Notes."""
         return self.linearize(pose, control, dt)[2]
 
@@ -204,12 +204,14 @@ class PerSecondVelocityMotionModel:
         )
         return c, s, jacobian_control
 
-    def linearize(self, pose, control, dt) -> tuple[FloatArray, FloatArray, FloatArray]:
+    def linearize(self, pose: ArrayLike, control: ArrayLike, dt: float) -> tuple[FloatArray, FloatArray, FloatArray]:
         """``(delta, G, R)`` at ``pose`` for ``control`` over ``dt`` (class Notes)."""
         pose, control, dt = self._check(pose, control, dt)
         return self.linearize_trusted(pose, control, dt)
 
-    def linearize_trusted(self, pose, control, dt) -> tuple[FloatArray, FloatArray, FloatArray]:
+    def linearize_trusted(
+        self, pose: FloatArray, control: FloatArray, dt: float
+    ) -> tuple[FloatArray, FloatArray, FloatArray]:
         """:meth:`linearize` without input checks, for the filters (which validated the inputs)."""
         theta, v, w, dt = float(pose[2]), float(control[0]), float(control[1]), float(dt)
         c, s, V = self._terms(theta, v, w, dt)
@@ -223,14 +225,14 @@ class PerSecondVelocityMotionModel:
         return delta, jacobian, 0.5 * (noise + noise.T)
 
     # -- stochastic model -----------------------------------------------------
-    def sample(self, pose, control, dt, rng: np.random.Generator) -> FloatArray:
+    def sample(self, pose: ArrayLike, control: ArrayLike, dt: float, rng: np.random.Generator) -> FloatArray:
         """Draw the next true pose: the arc of the noisy controls, plus the lateral slip (class Notes)."""
         pose, control, dt = self._check(pose, control, dt)
         if not isinstance(rng, np.random.Generator):
             raise TypeError(f"rng must be a numpy.random.Generator, got {type(rng).__name__}")
         return self.sample_trusted(pose, control, dt, rng)
 
-    def sample_trusted(self, pose, control, dt, rng: np.random.Generator) -> FloatArray:
+    def sample_trusted(self, pose: FloatArray, control: FloatArray, dt: float, rng: np.random.Generator) -> FloatArray:
         """:meth:`sample` without input checks, for simulators."""
         v, w, dt = float(control[0]), float(control[1]), float(dt)
         q_v, q_w, q_l = self._rates(v, w)
@@ -299,7 +301,7 @@ class CommandCorrection:
         """True when the correction changes nothing."""
         return self == CommandCorrection()
 
-    def apply(self, control) -> FloatArray:
+    def apply(self, control: ArrayLike) -> FloatArray:
         """Corrected controls of ``control``: shape (2,) or (n, 2) -> the same shape."""
         array = np.asarray(control, dtype=np.float64) if not isinstance(control, (str, bytes)) else None
         if array is None or array.ndim not in (1, 2) or array.shape[-1] != 2:
@@ -323,7 +325,7 @@ class CommandCorrection:
         factor = max(0.0, 1.0 - self.turn_slowdown * abs(w))
         return np.array([self.speed_scale * v * factor + self.speed_offset, self.turn_scale * w + self.turn_offset])
 
-    def jacobian(self, control) -> FloatArray:
+    def jacobian(self, control: ArrayLike) -> FloatArray:
         """``d(v', omega') / d(v, omega)`` (2, 2) at one control."""
         v, w = as_finite_vector(control, "control", 2)
         factor = 1.0 - self.turn_slowdown * abs(w)
@@ -357,7 +359,7 @@ class CorrectedMotionModel:
     ``V' = V(c(u)) dc/du`` (:meth:`jacobian_control`).
     """
 
-    def __init__(self, model, correction: CommandCorrection) -> None:
+    def __init__(self, model: MotionModel, correction: CommandCorrection) -> None:
         if not callable(getattr(model, "linearize", None)) or not callable(getattr(model, "validate_control", None)):
             raise TypeError(
                 f"model must be a motion model with linearize and validate_control, got {type(model).__name__}"
@@ -371,38 +373,40 @@ class CorrectedMotionModel:
     def __repr__(self) -> str:
         return f"CorrectedMotionModel({self.model!r}, {self.correction!r})"
 
-    def validate_control(self, control) -> FloatArray:
+    def validate_control(self, control: ArrayLike) -> FloatArray:
         """Return the *commanded* ``control`` as a finite ``(v, omega)`` array or raise."""
         return self.model.validate_control(control)
 
-    def corrected(self, control) -> FloatArray:
+    def corrected(self, control: ArrayLike) -> FloatArray:
         """The executed controls of a command."""
         return self.correction.apply_trusted(self.validate_control(control))
 
-    def linearize(self, pose, control, dt) -> tuple[FloatArray, FloatArray, FloatArray]:
+    def linearize(self, pose: ArrayLike, control: ArrayLike, dt: float) -> tuple[FloatArray, FloatArray, FloatArray]:
         """The model's ``(delta, G, R)`` at the corrected controls."""
         return self.model.linearize(pose, self.corrected(control), dt)
 
-    def linearize_trusted(self, pose, control, dt) -> tuple[FloatArray, FloatArray, FloatArray]:
+    def linearize_trusted(
+        self, pose: FloatArray, control: FloatArray, dt: float
+    ) -> tuple[FloatArray, FloatArray, FloatArray]:
         """:meth:`linearize` without input checks."""
         return self._linearize(pose, self.correction.apply_trusted(control), dt)
 
-    def predict(self, pose, control, dt) -> FloatArray:
+    def predict(self, pose: ArrayLike, control: ArrayLike, dt: float) -> FloatArray:
         """The model's noise-free next pose at the corrected controls."""
         return self.model.predict(pose, self.corrected(control), dt)
 
-    def jacobian_control(self, pose, control, dt) -> FloatArray:
+    def jacobian_control(self, pose: ArrayLike, control: ArrayLike, dt: float) -> FloatArray:
         """``V' = V(c(u)) dc/du`` (3, 2), by the chain rule."""
         control = self.validate_control(control)
-        return self.model.jacobian_control(pose, self.correction.apply_trusted(control), dt) @ self.correction.jacobian(
-            control
-        )
+        # not part of MotionModel: every model of seif_gym.slam has it (another raises AttributeError here)
+        model_jacobian = self.model.jacobian_control  # type: ignore[attr-defined]
+        return model_jacobian(pose, self.correction.apply_trusted(control), dt) @ self.correction.jacobian(control)
 
-    def sample(self, pose, control, dt, rng: np.random.Generator) -> FloatArray:
+    def sample(self, pose: ArrayLike, control: ArrayLike, dt: float, rng: np.random.Generator) -> FloatArray:
         """The model's draw at the corrected controls."""
         return self.model.sample(pose, self.corrected(control), dt, rng)
 
-    def sample_trusted(self, pose, control, dt, rng: np.random.Generator) -> FloatArray:
+    def sample_trusted(self, pose: FloatArray, control: FloatArray, dt: float, rng: np.random.Generator) -> FloatArray:
         """:meth:`sample` without input checks."""
         sample = getattr(self.model, "sample_trusted", self.model.sample)
         return sample(pose, self.correction.apply_trusted(control), dt, rng)
@@ -415,7 +419,7 @@ class RangeDependentSensor(RangeBearingSensor):
     ----------
     range_slope : float, default 0.05
         ``a``: the range noise's standard deviation per metre of range.
-    range_bounds : (float, float), default (0.02, 0.5)
+    range_bounds : array_like of 2 floats, default (0.02, 0.5)
         ``(lo, hi)``, m, with ``0 < lo <= hi``.
     sigma_bearing, max_range, fov
         As for :class:`~seif_gym.slam.models.RangeBearingSensor`.
@@ -440,7 +444,7 @@ class RangeDependentSensor(RangeBearingSensor):
     def __init__(
         self,
         range_slope: float = 0.05,
-        range_bounds=(0.02, 0.5),
+        range_bounds: ArrayLike = (0.02, 0.5),
         sigma_bearing: float = math.radians(2.0),
         max_range: float = 8.0,
         fov: float = 2.0 * math.pi,
@@ -459,19 +463,19 @@ class RangeDependentSensor(RangeBearingSensor):
             f"sigma_bearing={self.sigma_bearing}, max_range={self.max_range}, fov={self.fov})"
         )
 
-    def range_sigma(self, ranges) -> FloatArray:
+    def range_sigma(self, ranges: ArrayLike) -> FloatArray:
         """``sigma_r(r) = clip(a r, lo, hi)`` for each range, m."""
         ranges = as_finite_array(np.atleast_1d(ranges), "ranges", (None,))
         return np.clip(self.range_slope * ranges, *self.range_bounds)
 
-    def range_sigma_derivative(self, ranges) -> FloatArray:
+    def range_sigma_derivative(self, ranges: ArrayLike) -> FloatArray:
         """``d sigma_r / d r``: ``a`` where ``lo < a r < hi``, else 0."""
         ranges = as_finite_array(np.atleast_1d(ranges), "ranges", (None,))
         scaled = self.range_slope * ranges
         inside = (scaled > self.range_bounds[0]) & (scaled < self.range_bounds[1])
         return np.where(inside, self.range_slope, 0.0)
 
-    def measurement_covariances(self, ranges) -> FloatArray:
+    def measurement_covariances(self, ranges: ArrayLike) -> FloatArray:
         """``Q(r)`` of each measurement, shape (m, 2, 2)."""
         sigma = self.range_sigma(ranges)
         covs = np.zeros((len(sigma), 2, 2))
@@ -479,7 +483,9 @@ class RangeDependentSensor(RangeBearingSensor):
         covs[:, 1, 1] = self.sigma_bearing**2
         return covs
 
-    def sample_trusted(self, pose, landmarks, rng: np.random.Generator, ids=None):
+    def sample_trusted(
+        self, pose: FloatArray, landmarks: FloatArray, rng: np.random.Generator, ids: ArrayLike | None = None
+    ) -> tuple[FloatArray, FloatArray, NDArray[np.int64]]:
         """:meth:`sample` without input checks: the range noise at each true range."""
         visible = self._visible(self.predict_trusted(pose, landmarks))
         indices = np.flatnonzero(visible)
@@ -492,7 +498,7 @@ class RangeDependentSensor(RangeBearingSensor):
         return ranges, bearings, visible_ids
 
 
-def mahalanobis_squared(innovations, covariances) -> FloatArray:
+def mahalanobis_squared(innovations: ArrayLike, covariances: ArrayLike) -> FloatArray:
     """``d_i^2 = nu_i^T S_i^-1 nu_i`` for each innovation, shape (m,).
 
     Parameters

@@ -8,6 +8,10 @@ approximation). Models: :class:`VelocityMotionModel` and
 :class:`RangeBearingSensor`.
 """
 
+from typing import Any
+
+from numpy.typing import ArrayLike
+
 from seif_gym.slam.association import AssociationAudit, Associator
 from seif_gym.slam.base import SlamFilter, UnknownLandmarkError
 from seif_gym.slam.car_model import AckermannLaserModel
@@ -21,7 +25,14 @@ from seif_gym.slam.seif import SEIF
 FILTERS: dict[str, type[SlamFilter]] = {"seif": SEIF, "eif": EIF, "ekf": EKF, "eseif": ESEIF}
 
 
-def make_filter(name: str, motion, sensor, initial_pose, initial_pose_cov=None, **options) -> SlamFilter:
+def make_filter(
+    name: str,
+    motion: MotionModel,
+    sensor: RangeBearingSensor,
+    initial_pose: ArrayLike,
+    initial_pose_cov: ArrayLike | None = None,
+    **options: Any,
+) -> SlamFilter:
     """Build the filter called ``name`` (a key of :data:`FILTERS`)."""
     if not isinstance(name, str) or name not in FILTERS:
         raise ValueError(f"filter must be one of {tuple(FILTERS)}, got {name!r}")

@@ -109,17 +109,23 @@ from __future__ import annotations
 import functools
 import math
 from collections import deque
+from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import scipy.linalg
 import scipy.optimize
 import scipy.stats
 from numba import njit
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
 from seif_gym.slam._kernels import range_bearing_jacobian
 from seif_gym.slam.marginals import breadth_first_joint_covariance, supports_breadth_first
+
+if TYPE_CHECKING:  # for annotations only
+    from seif_gym.slam.base import SlamFilter
+    from seif_gym.slam.models import RangeBearingSensor
 
 __all__ = ["ASSOCIATOR_PRESETS", "Associator", "AssociationStats", "AssociationAudit", "jcbb", "make_associator"]
 
@@ -131,7 +137,7 @@ _FORBIDDEN = 1e9
 
 
 @njit(cache=True)
-def _candidates(landmarks, points, radii):
+def _candidates(landmarks: FloatArray, points: FloatArray, radii: FloatArray) -> tuple[IntArray, IntArray, FloatArray]:
     """Pairs ``(i, j)`` with ``|landmarks[j] - points[i]| < radii[i]``, and that squared distance.
 
     Two passes (count, then fill) over all landmarks: about a nanosecond per
@@ -170,7 +176,16 @@ def _candidates(landmarks, points, radii):
 
 
 @njit(cache=True)
-def _pair_distances(pose, landmarks, joint, noise, ranges, bearings, pair_meas, pair_slot):
+def _pair_distances(
+    pose: FloatArray,
+    landmarks: FloatArray,
+    joint: FloatArray,
+    noise: FloatArray,
+    ranges: FloatArray,
+    bearings: FloatArray,
+    pair_meas: IntArray,
+    pair_slot: IntArray,
+) -> tuple[FloatArray, FloatArray]:
     """Mahalanobis distance and ``ln det S`` of each (measurement, candidate) pair.
 
     Pair ``k`` is measurement ``pair_meas[k]`` and the candidate in slot
@@ -294,7 +309,7 @@ class _JointSearch:
         self._search(0, [], np.zeros((0, 0)), np.zeros(0), 0.0, 0.0, set())
         return self.best[2]
 
-    def _state_of(self, pairs: list[int]):
+    def _state_of(self, pairs: list[int]) -> tuple[FloatArray, FloatArray, float, float] | None:
         state: tuple[list[int], FloatArray, FloatArray, float, float] = ([], np.zeros((0, 0)), np.zeros(0), 0.0, 0.0)
         for k in pairs:
             grown = self._extend(state[0], state[1], state[2], state[3], state[4], k)
@@ -303,12 +318,15 @@ class _JointSearch:
             state = (state[0] + [k], *grown)
         return state[1:]
 
-    def _extend(self, pairs, lower, white, d2, logdet, k):
+    def _extend(
+        self, pairs: list[int], lower: FloatArray, white: FloatArray, d2: float, logdet: float, k: int
+    ) -> tuple[FloatArray, FloatArray, float, float] | None:
         """``(L, w, d2, ln det)`` of ``pairs + [k]``, or None when it fails the joint gate."""
         idx = np.array([2 * p + a for p in pairs for a in (0, 1)], dtype=np.int64)
         block = self.cov[2 * k : 2 * k + 2, 2 * k : 2 * k + 2]
         if len(pairs):
-            cross = self.cov[np.ix_(idx, [2 * k, 2 * k + 1])]
+            # numpy's stubs have no overload of ix_ for an array next to a list
+            cross = self.cov[np.ix_(idx, [2 * k, 2 * k + 1])]  # type: ignore[list-item]
             b = scipy.linalg.solve_triangular(lower, cross, lower=True)
             schur = block - b.T @ b
             resid = self.nu[k] - b.T @ white
@@ -330,7 +348,16 @@ class _JointSearch:
         grown[size:, size:] = lc
         return grown, np.concatenate([white, wc]), d2, logdet + 2.0 * float(np.log(np.diag(lc)).sum())
 
-    def _search(self, level, pairs, lower, white, d2, logdet, used):
+    def _search(
+        self,
+        level: int,
+        pairs: list[int],
+        lower: FloatArray,
+        white: FloatArray,
+        d2: float,
+        logdet: float,
+        used: set[int],
+    ) -> None:
         self.nodes += 1
         best_count, best_cost, _ = self.best
         if level == len(self.options):
@@ -360,7 +387,16 @@ def _chi2_limit(probability: float, dof: int) -> float:
 
 
 @njit(cache=True)
-def _jcbb_compiled(nu, cov, option_start, option_pairs, pair_landmark, limits, max_nodes, initial):
+def _jcbb_compiled(
+    nu: FloatArray,
+    cov: FloatArray,
+    option_start: IntArray,
+    option_pairs: IntArray,
+    pair_landmark: IntArray,
+    limits: FloatArray,
+    max_nodes: int,
+    initial: IntArray,
+) -> IntArray:
     """:class:`_JointSearch`, compiled: the same depth-first order, cuts, ties and node budget.
 
     Level ``l`` (a measurement) has the options ``option_pairs[option_start[l]:option_start[l + 1]]``.
@@ -376,7 +412,7 @@ def _jcbb_compiled(nu, cov, option_start, option_pairs, pair_landmark, limits, m
     logdets = np.zeros(levels + 2)
     chosen = np.zeros(levels + 1, dtype=np.int64)
     used = np.zeros(int(pair_landmark.max()) + 1 if pair_landmark.shape[0] else 1, dtype=np.bool_)
-    best_count = 0
+    best_count: int = 0  # declared: initial.shape[0] is Any to numpy's stubs
     best_cost = 0.0
     best = np.zeros(levels + 1, dtype=np.int64)
     # the initial hypothesis, extended in its order; it is the incumbent when it passes the gate
@@ -452,7 +488,18 @@ def _jcbb_compiled(nu, cov, option_start, option_pairs, pair_landmark, limits, m
 
 
 @njit(cache=True)
-def _grow(nu, cov, lower, white, d2s, logdets, chosen, p, k, limits):
+def _grow(
+    nu: FloatArray,
+    cov: FloatArray,
+    lower: FloatArray,
+    white: FloatArray,
+    d2s: FloatArray,
+    logdets: FloatArray,
+    chosen: IntArray,
+    p: int,
+    k: int,
+    limits: FloatArray,
+) -> bool:
     """Extend the factor of the first ``p`` pairings of ``chosen`` by pair ``k`` (block row ``p``); False if it fails the gate."""
     rows = 2 * p
     b = np.empty((rows, 2))
@@ -590,10 +637,10 @@ class CoverageGrid:
         self.cells: dict[tuple[int, int], int] = {}
         self.cell = 0.0
 
-    def _setup(self, sensor) -> None:
+    def _setup(self, sensor: RangeBearingSensor) -> None:
         self.cell = max(1.0, float(sensor.max_range) / 10.0)
 
-    def add_scan(self, pose: FloatArray, sensor) -> None:
+    def add_scan(self, pose: FloatArray, sensor: RangeBearingSensor) -> None:
         """Count the cells well inside the footprint of a scan from ``pose``."""
         if not self.cell:
             self._setup(sensor)
@@ -637,6 +684,7 @@ class AssociationStats:
 
     @property
     def total(self) -> int:
+        """Measurements decided so far."""
         return self.associated + self.new + self.discarded
 
     @property
@@ -834,7 +882,9 @@ class Associator:
         return self._thresholds[3 if with_signatures else 2]
 
     # -- the decision ---------------------------------------------------------------
-    def distances(self, filt, ranges, bearings, signatures=None) -> tuple[IntArray, IntArray, FloatArray, FloatArray]:
+    def distances(
+        self, filt: SlamFilter, ranges: ArrayLike, bearings: ArrayLike, signatures: ArrayLike | None = None
+    ) -> tuple[IntArray, IntArray, FloatArray, FloatArray]:
         """Candidate pairs of a scan: ``(measurement, landmark index, d2, ln det S)``, all (p,).
 
         ``landmark index`` is the state order in ``filt``. Signatures add their
@@ -842,7 +892,9 @@ class Associator:
         """
         return self._pairs(filt, ranges, bearings, signatures)[:4]
 
-    def _pairs(self, filt, ranges, bearings, signatures=None):
+    def _pairs(
+        self, filt: SlamFilter, ranges: ArrayLike, bearings: ArrayLike, signatures: ArrayLike | None = None
+    ) -> tuple[IntArray, IntArray, FloatArray, FloatArray, FloatArray]:
         """:meth:`distances` plus the squared Euclidean distance of each pair (projected measurement to landmark)."""
         ranges = np.ascontiguousarray(ranges, dtype=np.float64)
         bearings = np.ascontiguousarray(bearings, dtype=np.float64)
@@ -871,16 +923,18 @@ class Associator:
         self._last = (pose, landmarks[unique], joint, noise, ranges, bearings, pair_slot)
         return pair_meas, pair_landmark, d2, logdet, euclid2
 
-    def _joint_covariance(self, filt, indices: IntArray) -> FloatArray:
+    def _joint_covariance(self, filt: SlamFilter, indices: IntArray) -> FloatArray:
         if self.blanket_size > 0 and supports_breadth_first(filt):
             return breadth_first_joint_covariance(filt, indices, self.blanket_size)
-        method = filt.local_joint_covariance
+        method: Callable[..., FloatArray] = filt.local_joint_covariance  # SEIF-type filters take neighbours
         try:
             return method(indices, neighbours=self.neighbours)
         except TypeError:  # exact filters take no neighbours option
             return method(indices)
 
-    def _signature_term(self, filt, signatures, ranges, pair_meas, pair_landmark) -> FloatArray:
+    def _signature_term(
+        self, filt: SlamFilter, signatures: ArrayLike, ranges: FloatArray, pair_meas: IntArray, pair_landmark: IntArray
+    ) -> FloatArray:
         assert self.signature_sigma is not None  # the caller checks
         signatures = np.asarray(signatures, dtype=np.float64)
         ids = filt.landmark_ids[pair_landmark].tolist()
@@ -891,7 +945,9 @@ class Associator:
         term = (signatures[pair_meas] - means) ** 2 / (variance * (1.0 + 1.0 / np.maximum(counts, 1.0)))
         return np.where(np.isnan(means), 1.0, term)  # no signature yet: the expected value of the term
 
-    def associate(self, filt, ranges, bearings, signatures=None) -> IntArray:
+    def associate(
+        self, filt: SlamFilter, ranges: ArrayLike, bearings: ArrayLike, signatures: ArrayLike | None = None
+    ) -> IntArray:
         """Landmark ids for one scan: a mapped id, a new id, or ``-1`` (discarded).
 
         Parameters
@@ -913,6 +969,7 @@ class Associator:
             discarded ones. New ids are allocated here (``next_id``); the
             measurement that created each is in :attr:`created`.
         """
+        ranges = np.asarray(ranges, dtype=np.float64)  # for len(); _pairs converts it anyway
         m = len(ranges)
         ids = np.full(m, -1, dtype=np.int64)
         use_signatures = signatures is not None and self.signature_sigma is not None
@@ -969,7 +1026,15 @@ class Associator:
                 self.signatures.add(int(ids[k]), float(values[k]))
         return ids
 
-    def _joint_decision(self, gated, chosen, pair_meas, pair_landmark, logdet, euclid2) -> IntArray:
+    def _joint_decision(
+        self,
+        gated: IntArray,
+        chosen: IntArray,
+        pair_meas: IntArray,
+        pair_landmark: IntArray,
+        logdet: FloatArray,
+        euclid2: FloatArray,
+    ) -> IntArray:
         """JCBB over the gated pairs from the assignment ``chosen``, then the test against new landmarks."""
         pose, candidates, joint, noise, ranges, bearings, pair_slot = self._last
         nu, H = pair_innovations(pose, candidates, ranges, bearings, pair_meas[gated], pair_slot[gated])
@@ -998,7 +1063,7 @@ class Associator:
             local = local[keep]
         return gated[np.sort(local)]
 
-    def _defer_lone_closures(self, filt, chosen: IntArray, pair_landmark: IntArray) -> IntArray:
+    def _defer_lone_closures(self, filt: SlamFilter, chosen: IntArray, pair_landmark: IntArray) -> IntArray:
         """Drop the loop-closing pairs of ``chosen`` until enough distinct landmarks back them.
 
         A pair closes a loop when its landmark was last associated more than ``closure_age`` scans
@@ -1021,7 +1086,9 @@ class Associator:
         self.stats.deferred += int(closing.sum())
         return chosen[~closing]
 
-    def update(self, filt, ranges, bearings, signatures=None) -> IntArray:
+    def update(
+        self, filt: SlamFilter, ranges: ArrayLike, bearings: ArrayLike, signatures: ArrayLike | None = None
+    ) -> IntArray:
         """:meth:`associate`, then ``filt.update_trusted`` with the kept measurements; returns the ids."""
         ranges = np.ascontiguousarray(ranges, dtype=np.float64)
         bearings = np.ascontiguousarray(bearings, dtype=np.float64)
@@ -1058,11 +1125,12 @@ class AssociationAudit:
         self.agree = self.errors = self.discarded = self.total = 0
         self.duplicates = 0
 
-    def record(self, associator: Associator, ids, true_ids) -> int:
+    def record(self, associator: Associator, ids: ArrayLike, true_ids: ArrayLike) -> int:
         """Score one scan: ``ids`` from ``associator.associate``/``update``, ``true_ids`` the truth.
 
         Returns the number of measurements of this scan that disagree.
         """
+        ids = np.asarray(ids)  # for len()
         errors = 0
         for k, (given, true) in enumerate(zip(np.asarray(ids).tolist(), np.asarray(true_ids).tolist())):
             if given < 0:
@@ -1097,7 +1165,7 @@ class AssociationAudit:
         """Fraction of the recorded measurements whose decision agrees with the truth."""
         return self.agree / self.total if self.total else float("nan")
 
-    def true_ids(self, landmark_ids) -> IntArray:
+    def true_ids(self, landmark_ids: ArrayLike) -> IntArray:
         """The true id attributed to each of ``landmark_ids`` (associator ids; -1 if unknown)."""
         return np.array([self.true_of.get(int(i), -1) for i in np.asarray(landmark_ids).tolist()], dtype=np.int64)
 
@@ -1111,7 +1179,7 @@ ASSOCIATOR_PRESETS: dict[str, dict] = {
 }
 
 
-def make_associator(preset: str = "joint", **overrides) -> Associator:
+def make_associator(preset: str = "joint", **overrides: Any) -> Associator:
     """An :class:`Associator` with the settings of a named preset.
 
     Parameters

@@ -13,7 +13,7 @@ from abc import ABC, abstractmethod
 from typing import Any, ClassVar
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
 from seif_gym.slam._validation import (
     as_covariance,
@@ -130,8 +130,8 @@ class SlamFilter(ABC):
         self,
         motion: MotionModel,
         sensor: RangeBearingSensor,
-        initial_pose,
-        initial_pose_cov=None,
+        initial_pose: ArrayLike,
+        initial_pose_cov: ArrayLike | None = None,
         **options: Any,
     ) -> None:
         if not callable(getattr(motion, "linearize", None)) or not callable(getattr(motion, "validate_control", None)):
@@ -203,13 +203,13 @@ class SlamFilter(ABC):
         """
 
     # -- public interface ----------------------------------------------------
-    def predict(self, control, dt: float) -> None:
+    def predict(self, control: ArrayLike, dt: float) -> None:
         """Motion update with ``control = (v, omega)`` applied for ``dt`` seconds."""
         control = self.motion.validate_control(control)
         dt = as_positive_scalar(dt, "dt")
         self._predict(control, dt)
 
-    def update(self, ranges, bearings, ids) -> None:
+    def update(self, ranges: ArrayLike, bearings: ArrayLike, ids: ArrayLike) -> None:
         """Measurement update with known correspondences.
 
         Parameters
@@ -223,11 +223,11 @@ class SlamFilter(ABC):
         ranges, bearings, ids = self.validate_measurements(ranges, bearings, ids)
         self.update_trusted(ranges, bearings, ids)
 
-    def predict_trusted(self, control, dt: float) -> None:
+    def predict_trusted(self, control: FloatArray, dt: float) -> None:
         """:meth:`predict` without input checks, for simulators whose controls are valid by construction."""
         self._predict(control, float(dt))
 
-    def update_trusted(self, ranges, bearings, ids) -> None:
+    def update_trusted(self, ranges: FloatArray, bearings: FloatArray, ids: NDArray[np.int64]) -> None:
         """:meth:`update` without input checks (float64 ranges > 0, bearings, distinct int64 ids).
 
         Applies the innovation gate (class Notes) when the filter has one.
@@ -249,7 +249,7 @@ class SlamFilter(ABC):
         distances.setflags(write=False)
         self.last_mahalanobis = distances
 
-    def innovation_distances(self, ranges, bearings, ids) -> FloatArray:
+    def innovation_distances(self, ranges: ArrayLike, bearings: ArrayLike, ids: ArrayLike) -> FloatArray:
         """Squared Mahalanobis distance ``d^2`` of each measurement's innovation (class Notes), shape (m,).
 
         NaN for a landmark not in the map. Changes nothing; costs what
@@ -258,7 +258,9 @@ class SlamFilter(ABC):
         ranges, bearings, ids = self.validate_measurements(ranges, bearings, ids)
         return self.innovation_distances_trusted(ranges, bearings, ids)
 
-    def innovation_distances_trusted(self, ranges, bearings, ids) -> FloatArray:
+    def innovation_distances_trusted(
+        self, ranges: FloatArray, bearings: FloatArray, ids: NDArray[np.int64]
+    ) -> FloatArray:
         """:meth:`innovation_distances` without input checks."""
         distances = np.full(len(ids), np.nan)
         index = np.array([self._id_to_index.get(i, -1) for i in ids.tolist()], dtype=np.int64)
@@ -295,7 +297,7 @@ class SlamFilter(ABC):
             return None
         return np.asarray(np.linalg.inv(self._noise_covariances(ranges)), dtype=np.float64)
 
-    def _update_known(self, ranges, bearings, ids) -> None:
+    def _update_known(self, ranges: FloatArray, bearings: FloatArray, ids: NDArray[np.int64]) -> None:
         """The update with the measurements the gate kept: new ids appended, then :meth:`_update`."""
         if len(ids) == 0:
             self._update(ranges, bearings, np.empty(0, np.int64), np.empty(0, bool))
@@ -324,7 +326,9 @@ class SlamFilter(ABC):
             raise
 
     @staticmethod
-    def validate_measurements(ranges, bearings, ids) -> tuple[FloatArray, FloatArray, NDArray[np.int64]]:
+    def validate_measurements(
+        ranges: ArrayLike, bearings: ArrayLike, ids: ArrayLike
+    ) -> tuple[FloatArray, FloatArray, NDArray[np.int64]]:
         """Check a measurement set; returns float64 ranges, bearings and int64 ids."""
         ranges = as_finite_array(ranges, "ranges", (None,))
         bearings = as_finite_array(bearings, "bearings", (None,))
@@ -353,7 +357,7 @@ class SlamFilter(ABC):
         for landmark_id in self._ids[n - count : n].tolist():
             del self._id_to_index[landmark_id]
 
-    def landmark_index(self, landmark_id) -> int:
+    def landmark_index(self, landmark_id: int | np.integer) -> int:
         """Order of landmark ``landmark_id`` in the state (0 for the first landmark)."""
         if isinstance(landmark_id, bool) or not isinstance(landmark_id, (int, np.integer)):
             raise TypeError(f"landmark_id must be an integer, got {type(landmark_id).__name__}")
@@ -408,14 +412,14 @@ class SlamFilter(ABC):
         cov.setflags(write=False)
         return cov
 
-    def landmark_covariance(self, landmark_id) -> FloatArray:
+    def landmark_covariance(self, landmark_id: int | np.integer) -> FloatArray:
         """Marginal covariance of landmark ``landmark_id``, shape (2, 2)."""
         index = self.landmark_index(landmark_id)
         cov = self._marginal_covariance(np.array([3 + 2 * index, 4 + 2 * index]))
         cov.setflags(write=False)
         return cov
 
-    def local_marginals(self, landmark_indices) -> tuple[FloatArray, FloatArray]:
+    def local_marginals(self, landmark_indices: ArrayLike) -> tuple[FloatArray, FloatArray]:
         """Pose covariance (3, 3) and covariances (k, 2, 2) of the landmarks at ``landmark_indices``.
 
         ``landmark_indices`` are state orders (``landmark_index(id)``). Exact
@@ -433,7 +437,7 @@ class SlamFilter(ABC):
             covs[k] = self._marginal_covariance(np.array([3 + 2 * index, 4 + 2 * index]))
         return pose_cov, covs
 
-    def local_joint_covariance(self, landmark_indices) -> FloatArray:
+    def local_joint_covariance(self, landmark_indices: ArrayLike) -> FloatArray:
         """Joint covariance (3 + 2k, 3 + 2k) of the pose and the landmarks at ``landmark_indices``.
 
         Ordered ``(x, y, theta, m_i1x, m_i1y, ...)``, cross-covariances
@@ -445,7 +449,7 @@ class SlamFilter(ABC):
         state = np.concatenate([np.arange(3), (3 + 2 * indices[:, None] + np.arange(2)).ravel()]).astype(np.int64)
         return self._marginal_covariance(state)
 
-    def _check_landmark_indices(self, landmark_indices) -> NDArray[np.int64]:
+    def _check_landmark_indices(self, landmark_indices: ArrayLike) -> NDArray[np.int64]:
         indices = np.asarray(landmark_indices)
         if indices.ndim != 1 or (indices.size and not np.issubdtype(indices.dtype, np.integer)):
             raise TypeError(f"landmark_indices must be a 1-D array of integers, got {indices.dtype} {indices.shape}")

@@ -113,7 +113,7 @@ def marginalize_robot(omega: FloatArray, xi: FloatArray) -> tuple[FloatArray, Fl
 
 
 @njit(cache=True)
-def marginalize_robot_block(omega, xi):
+def marginalize_robot_block(omega: FloatArray, xi: FloatArray) -> tuple[FloatArray, FloatArray]:
     """Fast :func:`marginalize_robot` (Cholesky of ``Omega_xx``, exactly symmetric result)."""
     size = xi.shape[0]
     lower = np.linalg.cholesky(np.ascontiguousarray(omega[:3, :3]))
@@ -145,7 +145,9 @@ def marginalize_robot_block(omega, xi):
 
 
 @njit(cache=True)
-def relocalization_pose_information(mean, landmark_info, indices, noise_cov):
+def relocalization_pose_information(
+    mean: FloatArray, landmark_info: FloatArray, indices: IndexArray, noise_cov: FloatArray
+) -> FloatArray:
     """Pose information ``J_i = H_x^T S_i^-1 H_x`` each measured landmark would give, shape (m, 3, 3).
 
     ``S_i = Q + H_m P_i H_m^T`` counts the landmark's own uncertainty, with
@@ -168,7 +170,7 @@ def relocalization_pose_information(mean, landmark_info, indices, noise_cov):
 
 
 @njit(cache=True)
-def _pose_information(offsets, covariances, noise_cov):
+def _pose_information(offsets: FloatArray, covariances: FloatArray, noise_cov: FloatArray) -> FloatArray:
     """``J_i = H_x^T (Q + H_m P_i H_m^T)^-1 H_x`` for landmarks at ``offsets`` (m, 2) from the robot.
 
     ``covariances`` (m, 2, 2) are the landmarks' ``P_i``; zero for a landmark
@@ -204,7 +206,7 @@ def _pose_information(offsets, covariances, noise_cov):
 
 
 @njit(cache=True)
-def _det3(m):
+def _det3(m: FloatArray) -> float:
     return (
         m[0, 0] * (m[1, 1] * m[2, 2] - m[1, 2] * m[2, 1])
         - m[0, 1] * (m[1, 0] * m[2, 2] - m[1, 2] * m[2, 0])
@@ -213,7 +215,7 @@ def _det3(m):
 
 
 @njit(cache=True)
-def select_relocalization_landmarks(pose_information, count, rcond):
+def select_relocalization_landmarks(pose_information: FloatArray, count: int, rcond: float) -> IndexArray:
     """Pick ``count`` measurements whose summed pose information has the largest determinant.
 
     Parameters
@@ -453,7 +455,7 @@ class ESEIF(SEIF):
         self._plan = _ORDINARY
 
     # -- one update ----------------------------------------------------------------
-    def _update_known(self, ranges, bearings, ids) -> None:
+    def _update_known(self, ranges: FloatArray, bearings: FloatArray, ids: IndexArray) -> None:
         """The update of the measurements the gate kept; plans it (and what to leave out) first."""
         plan, kept = self._plan_update(ranges, bearings, ids)
         if kept is not None:

@@ -78,7 +78,7 @@ class InformationStore:
         capacity = max(count, 2 * self.capacity)
         n = self.num_landmarks
 
-        def grow(array: np.ndarray, fill=0) -> np.ndarray:
+        def grow(array: np.ndarray, fill: int = 0) -> np.ndarray:
             grown = np.full((capacity,) + array.shape[1:], fill, dtype=array.dtype)
             grown[:n] = array[:n]
             return grown

@@ -28,12 +28,16 @@ gather it calls).
 from __future__ import annotations
 
 from collections import deque
+from typing import TYPE_CHECKING, Protocol, TypeGuard
 
 import numpy as np
 import scipy.linalg
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
 from seif_gym.slam import _kernels
+
+if TYPE_CHECKING:  # for annotations only
+    from seif_gym.slam.information import InformationStore
 
 __all__ = ["breadth_first_nodes", "breadth_first_joint_covariance", "supports_breadth_first"]
 
@@ -41,12 +45,19 @@ FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
 
 
-def supports_breadth_first(filt: object) -> bool:
+class _StoreFilter(Protocol):
+    """What :func:`breadth_first_joint_covariance` reads of a SEIF-type filter."""
+
+    _store: InformationStore
+    _active: IntArray
+
+
+def supports_breadth_first(filt: object) -> TypeGuard[_StoreFilter]:
     """Whether ``filt`` keeps a SEIF-type information store (``_store`` and ``_active``)."""
     return hasattr(filt, "_store") and hasattr(filt, "_active")
 
 
-def breadth_first_nodes(store, active: IntArray, targets: IntArray, max_landmarks: int) -> IntArray:
+def breadth_first_nodes(store: InformationStore, active: IntArray, targets: IntArray, max_landmarks: int) -> IntArray:
     """Landmarks of the block: ``active`` and ``targets`` first, then breadth-first rings through ``Omega``.
 
     The two searches (from the active landmarks, from the targets) advance one
@@ -73,7 +84,9 @@ def breadth_first_nodes(store, active: IntArray, targets: IntArray, max_landmark
     return np.fromiter(chosen, dtype=np.int64, count=len(chosen))
 
 
-def breadth_first_joint_covariance(filt, landmark_indices, max_landmarks: int = 128) -> FloatArray:
+def breadth_first_joint_covariance(
+    filt: _StoreFilter, landmark_indices: ArrayLike, max_landmarks: int = 128
+) -> FloatArray:
     """Joint covariance of the pose and ``landmark_indices`` from a breadth-first block of ``filt``'s ``Omega``.
 
     Parameters

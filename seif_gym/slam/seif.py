@@ -31,7 +31,7 @@ import numpy as np
 import scipy.linalg
 import scipy.sparse
 import scipy.sparse.linalg
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
 from seif_gym.slam import _kernels
 from seif_gym.slam.base import SlamFilter
@@ -905,7 +905,7 @@ class SEIF(SlamFilter):
                 recover_mean_amortized(store, everything, self._active)
             _rewrap_heading(store, self._active)
 
-    def local_marginals(self, landmark_indices) -> tuple[FloatArray, FloatArray]:
+    def local_marginals(self, landmark_indices: ArrayLike) -> tuple[FloatArray, FloatArray]:
         """Pose and landmark covariances from the Markov blanket, in constant time.
 
         Inverts the information block over the robot, its active landmarks
@@ -929,7 +929,7 @@ class SEIF(SlamFilter):
         nodes = np.concatenate([self._active, np.array(outside, dtype=np.int64)])
         return blanket_covariances(store, nodes, indices)
 
-    def local_joint_covariance(self, landmark_indices, neighbours: bool | int = True) -> FloatArray:
+    def local_joint_covariance(self, landmark_indices: ArrayLike, neighbours: bool | int = True) -> FloatArray:
         """Joint covariance of the pose and the landmarks at ``landmark_indices``, in constant time.
 
         Returns the ``(3 + 2k, 3 + 2k)`` covariance over ``(x, y, theta,

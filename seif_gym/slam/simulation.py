@@ -33,7 +33,7 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
 # the metric has one home, seif_gym.metrics; re-exported here, where it was first defined
 from seif_gym.metrics import pose_nees  # noqa: F401  (after the slam imports: metrics imports slam.models)
@@ -111,10 +111,10 @@ class SimulatedRun:
 def simulate_run(
     motion: MotionModel,
     sensor: RangeBearingSensor,
-    landmarks,
-    controls,
+    landmarks: ArrayLike,
+    controls: ArrayLike,
     dt: float,
-    initial_pose,
+    initial_pose: ArrayLike,
     rng: np.random.Generator | None = None,
     *,
     noise_free: bool = False,

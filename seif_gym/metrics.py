@@ -82,7 +82,9 @@ MIN_RELATIVE_LANDMARKS: int = 2
 
 # -- map error ------------------------------------------------------------------------------------
 @njit(cache=True)
-def map_error_kernel(estimates, truth, ids, d_cap):  # pragma: no cover - compiled
+def map_error_kernel(  # pragma: no cover - compiled
+    estimates: FloatArray, truth: FloatArray, ids: NDArray[np.int64], d_cap: float
+) -> float:
     """Compiled :func:`map_error` (unchecked: ``estimates`` (m, 2) C-contiguous float64, ``ids`` int64)."""
     total = d_cap * (truth.shape[0] - ids.shape[0])
     for k in range(ids.shape[0]):
@@ -178,7 +180,7 @@ def filter_map_error(filt: SlamFilter, truth: FloatArray, d_cap: float, audit: A
 
 # -- NEES -----------------------------------------------------------------------------------------
 @njit(cache=True)
-def nees_kernel(error, covariance):  # pragma: no cover - compiled
+def nees_kernel(error: FloatArray, covariance: FloatArray) -> float:  # pragma: no cover - compiled
     """Compiled ``eᵀ P⁻¹ e`` by a Cholesky solve; ``inf`` if ``P`` is not positive definite (unchecked)."""
     n = error.shape[0]
     lower = np.zeros((n, n))

@@ -20,7 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 from gymnasium import spaces
 from numba import njit
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
 from seif_gym.metrics import CHI2_95_2DOF
 from seif_gym.slam._kernels import blanket_covariances, blanket_nodes, conditional_std
@@ -33,6 +33,9 @@ __all__ = [
 ]  # fmt: skip
 
 FloatArray = NDArray[np.float64]
+IdArray = NDArray[np.int64]
+Float32Array = NDArray[np.float32]
+ByteArray = NDArray[np.uint8]
 
 #: Entries of ``obs["pose"]``.
 POSE_FEATURES = ("x", "y", "cos_theta", "sin_theta", "std_x", "std_y", "std_theta")
@@ -83,7 +86,16 @@ class ObservationConfig:
 
 
 @njit(cache=True)
-def _sweep(coverage, resolution, half_arena, x, y, theta, max_range, half_fov):
+def _sweep(
+    coverage: ByteArray,
+    resolution: float,
+    half_arena: float,
+    x: float,
+    y: float,
+    theta: float,
+    max_range: float,
+    half_fov: float,
+) -> None:
     """Mark the coverage cells whose centres the sensor sees from ``(x, y, theta)``."""
     cells = coverage.shape[0]
     lo_i = max(int((x - max_range + half_arena) / resolution), 0)
@@ -107,7 +119,18 @@ def _sweep(coverage, resolution, half_arena, x, y, theta, max_range, half_fov):
 
 
 @njit(cache=True)
-def _belief_map(coverage, resolution, half_arena, x, y, theta, size, extent, landmarks, confidence):
+def _belief_map(
+    coverage: ByteArray,
+    resolution: float,
+    half_arena: float,
+    x: float,
+    y: float,
+    theta: float,
+    size: int,
+    extent: float,
+    landmarks: FloatArray,
+    confidence: FloatArray,
+) -> ByteArray:
     """The (3, size, size) uint8 egocentric raster (0..255); row 0 is ahead, column 0 is left."""
     out = np.zeros((3, size, size), dtype=np.uint8)
     cells = coverage.shape[0]
@@ -140,7 +163,7 @@ def _belief_map(coverage, resolution, half_arena, x, y, theta, size, extent, lan
 
 
 @njit(cache=True)
-def _nearest(x, y, landmarks, k):
+def _nearest(x: float, y: float, landmarks: FloatArray, k: int) -> IdArray:
     """Indices of the ``k`` landmarks nearest to ``(x, y)``, nearest first (ties: lower index)."""
     n = landmarks.shape[0]
     count = min(k, n)
@@ -168,7 +191,18 @@ def _nearest(x, y, landmarks, k):
 
 
 @njit(cache=True)
-def _landmark_features(x, y, theta, landmarks, nearest, covs, k, diagonal, std_scale, chi2):
+def _landmark_features(
+    x: float,
+    y: float,
+    theta: float,
+    landmarks: FloatArray,
+    nearest: IdArray,
+    covs: FloatArray,
+    k: int,
+    diagonal: float,
+    std_scale: float,
+    chi2: float,
+) -> tuple[Float32Array, Float32Array]:
     """``obs["landmarks"]`` (``k`` rows ``(forward, left, major, minor)``, flattened) and the mask."""
     features = np.zeros((k, 4), dtype=np.float32)
     mask = np.zeros(k, dtype=np.float32)
@@ -233,7 +267,7 @@ class BeliefEncoder:
         _sweep(self.coverage, self.config.coverage_resolution, self.half_arena,
                float(pose[0]), float(pose[1]), float(pose[2]), self.sensor.max_range, half_fov)  # fmt: skip
 
-    def nearest(self, pose: FloatArray, landmarks: FloatArray) -> NDArray[np.int64]:
+    def nearest(self, pose: FloatArray, landmarks: ArrayLike) -> NDArray[np.int64]:
         """State orders of the ``K`` mapped landmarks nearest to ``pose``, nearest first."""
         return _nearest(float(pose[0]), float(pose[1]), np.ascontiguousarray(landmarks), self.config.nearest_landmarks)
 
@@ -511,10 +545,13 @@ class ObservationDecoder:
 
 
 @njit(cache=True)
-def encode_many(coverage, resolution, half_arena, max_range, half_fov, map_size, map_extent, nearest_landmarks,
-                diagonal, std_scale, robot_info, robot_links, landmark_info, neighbour_index, neighbour_info,
-                neighbour_count, information_vector, mean, block_position, active, counters,
-                pose_out, landmarks_out, mask_out, map_out, pose_covariance_out):  # fmt: skip
+def encode_many(coverage: ByteArray, resolution: float, half_arena: float, max_range: float, half_fov: float,
+                map_size: int, map_extent: float, nearest_landmarks: int, diagonal: float, std_scale: float,
+                robot_info: FloatArray, robot_links: FloatArray, landmark_info: FloatArray, neighbour_index: IdArray,
+                neighbour_info: FloatArray, neighbour_count: IdArray, information_vector: FloatArray,
+                mean: FloatArray, block_position: IdArray, active: IdArray, counters: IdArray,
+                pose_out: Float32Array, landmarks_out: Float32Array, mask_out: Float32Array, map_out: ByteArray,
+                pose_covariance_out: FloatArray) -> None:  # fmt: skip
     """:meth:`BeliefEncoder.sweep` then :meth:`BeliefEncoder.encode` of a batch of SEIFs (``BatchedSEIF`` arrays).
 
     Writes each filter's observation into ``pose_out`` (N, 7), ``landmarks_out`` (N, 4K),

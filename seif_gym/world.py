@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from numba import njit
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
 from seif_gym.slam._kernels import _wrap_float
 from seif_gym.slam.models import RangeBearingSensor, VelocityMotionModel, _visible_measurements, wrap_angle
@@ -167,8 +167,8 @@ class World:
         config: WorldConfig,
         motion: VelocityMotionModel | PerSecondVelocityMotionModel,
         sensor: RangeBearingSensor,
-        landmarks: FloatArray,
-        initial_pose: FloatArray,
+        landmarks: ArrayLike,
+        initial_pose: ArrayLike,
     ) -> None:
         self.config = config
         self.motion = motion
@@ -182,7 +182,7 @@ class World:
         x, y = float(position[0]), float(position[1])
         return -hx <= x <= hx and -hy <= y <= hy
 
-    def step(self, control: FloatArray, dt: float, rng: np.random.Generator) -> tuple[FloatArray, bool]:
+    def step(self, control: ArrayLike, dt: float, rng: np.random.Generator) -> tuple[FloatArray, bool]:
         """Move the robot; returns the executed control and whether it hit the wall."""
         # inputs come validated from the env: the models' unchecked paths are used
         executed = np.asarray(control, dtype=np.float64)
@@ -204,7 +204,7 @@ class World:
 
 # -- many worlds in one call (the native vector env) -------------------------------------------------
 @njit(cache=True)
-def _displacement(theta, v, w, dt):
+def _displacement(theta: float, v: float, w: float, dt: float) -> tuple[float, float, float]:
     """``VelocityMotionModel._displacement`` (same operations)."""
     half = 0.5 * w * dt
     if abs(half) < 1e-4:
@@ -217,7 +217,17 @@ def _displacement(theta, v, w, dt):
 
 
 @njit(cache=True)
-def _step_worlds(poses, controls, dt, alphas, half_size, noise, cursor, executed, wall):
+def _step_worlds(
+    poses: FloatArray,
+    controls: FloatArray,
+    dt: float,
+    alphas: FloatArray,
+    half_size: float,
+    noise: FloatArray,
+    cursor: NDArray[np.int64],
+    executed: FloatArray,
+    wall: NDArray[np.bool_],
+) -> None:
     """:meth:`World.step` of every world ``e``, its motion noise read from ``noise[e, cursor[e]:]``."""
     for e in range(poses.shape[0]):
         x, y, theta = poses[e, 0], poses[e, 1], poses[e, 2]
@@ -243,8 +253,9 @@ def _step_worlds(poses, controls, dt, alphas, half_size, noise, cursor, executed
 
 
 @njit(cache=True)
-def _measure_worlds(poses, landmarks, max_range, half_fov, sigma_range, sigma_bearing, noise, cursor,
-                    ranges, bearings, ids, counts):  # fmt: skip
+def _measure_worlds(poses: FloatArray, landmarks: FloatArray, max_range: float, half_fov: float, sigma_range: float,
+                    sigma_bearing: float, noise: FloatArray, cursor: NDArray[np.int64], ranges: FloatArray,
+                    bearings: FloatArray, ids: NDArray[np.int64], counts: NDArray[np.int64]) -> None:  # fmt: skip
     """:meth:`World.measure` of every world, its sensor noise read from ``noise[e, cursor[e]:]``."""
     for e in range(poses.shape[0]):
         visible, z = _visible_measurements(poses[e, 0], poses[e, 1], poses[e, 2], landmarks[e], max_range, half_fov)
@@ -337,7 +348,7 @@ class BatchedWorld:
         self.ids = np.zeros((n, m), dtype=np.int64)
         self.counts = np.zeros(n, dtype=np.int64)
 
-    def reset(self, index: int, landmarks: FloatArray, pose: FloatArray, motion_rng: np.random.Generator,
+    def reset(self, index: int, landmarks: ArrayLike, pose: ArrayLike, motion_rng: np.random.Generator,
               sensor_rng: np.random.Generator) -> None:  # fmt: skip
         """Start world ``index`` with these landmarks, true pose and noise generators."""
         self.landmarks[index] = landmarks
@@ -345,7 +356,7 @@ class BatchedWorld:
         self._motion_noise.reset(index, motion_rng)
         self._sensor_noise.reset(index, sensor_rng)
 
-    def step(self, controls: FloatArray, dt: float) -> tuple[FloatArray, NDArray[np.bool_]]:
+    def step(self, controls: ArrayLike, dt: float) -> tuple[FloatArray, NDArray[np.bool_]]:
         """Move every robot (valid ``controls``, shape (N, 2)); the executed controls and the wall contacts."""
         self._motion_noise.reserve(3)
         noise = self._motion_noise

@@ -13,7 +13,7 @@ import gymnasium as gym
 import numpy as np
 import scipy.sparse.linalg
 from gymnasium import spaces
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
 from seif_gym.metrics import filter_map_error, map_error
 from seif_gym.metrics import nees_kernel as _nees
@@ -473,7 +473,9 @@ class SeifExploreEnv(gym.Env):
         return {key: value for key, value in merged.items() if key in _CONSTRUCTOR_ARGUMENTS}
 
     # -- gymnasium API -------------------------------------------------------------
-    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
+    def reset(
+        self, *, seed: int | None = None, options: dict[str, Any] | None = None
+    ) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
         super().reset(seed=seed)
         # one generator per source of randomness, all drawn from the env's seeded generator
         layout_rng, start_rng, motion_rng, sensor_rng = (
@@ -511,7 +513,7 @@ class SeifExploreEnv(gym.Env):
             self.render()
         return observation, info
 
-    def step(self, action):
+    def step(self, action: ArrayLike) -> tuple[dict[str, np.ndarray], float, bool, bool, dict[str, Any]]:
         if self.world is None or self.filter is None:
             raise RuntimeError("call reset() before step()")
         action = np.asarray(action, dtype=np.float64)
@@ -557,7 +559,7 @@ class SeifExploreEnv(gym.Env):
             raise RuntimeError(f"call reset() before {method}()")
         return self.world, self.filter
 
-    def _filter_update(self, ranges, bearings, true_ids) -> None:
+    def _filter_update(self, ranges: FloatArray, bearings: FloatArray, true_ids: NDArray[np.int64]) -> None:
         """The filter's measurement update, with the true ids or with ML data association."""
         _, filt = self._require_state("step")
         if self.associator is None:
@@ -600,7 +602,16 @@ class SeifExploreEnv(gym.Env):
         dims = 3 + 2 * self.world_config.num_landmarks
         return float((log_det_info + prior) / dims)
 
-    def _info(self, control, executed, measurement, step_time, *, wall: bool, diverged: bool) -> dict[str, Any]:
+    def _info(
+        self,
+        control: ArrayLike,
+        executed: ArrayLike,
+        measurement: tuple[FloatArray, FloatArray, NDArray[np.int64]],
+        step_time: float,
+        *,
+        wall: bool,
+        diverged: bool,
+    ) -> dict[str, Any]:
         world, filt = self._require_state("step")
         estimate = filt.pose
         error = world.pose - estimate
@@ -631,7 +642,7 @@ class SeifExploreEnv(gym.Env):
         }
 
     # -- rendering ------------------------------------------------------------------
-    def render(self):
+    def render(self) -> NDArray[np.uint8] | None:
         if self.render_mode is None:
             gym.logger.warn("render() called without a render_mode; pass render_mode='rgb_array' or 'human' to make()")
             return None

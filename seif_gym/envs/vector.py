@@ -38,6 +38,7 @@ import numpy as np
 from gymnasium.vector import AutoresetMode, SyncVectorEnv, VectorEnv
 from gymnasium.vector.utils import batch_space, concatenate, create_empty_array
 from numba import njit
+from numpy.typing import ArrayLike, NDArray
 
 from seif_gym.envs.explore import Measurements, SeifExploreEnv
 from seif_gym.metrics import map_error_kernel, nees_kernel
@@ -50,12 +51,19 @@ from seif_gym.world import BatchedWorld
 
 __all__ = ["SeifExploreVectorEnv"]
 
+FloatArray = NDArray[np.float64]
+IdArray = NDArray[np.int64]
+BoolArray = NDArray[np.bool_]
+
 
 @njit(cache=True)
-def _score_many(true_poses, truth, mean, counters, ids, robot_info, robot_links, landmark_info, neighbour_index,
-                neighbour_info, neighbour_count, information_vector, block_position, blanket_covariances, d_cap,
-                previous_error, wall, wall_penalty, divergence_threshold, dense_up_to, reward, map_error, pose_error,
-                diverged, pose_nees, pose_nees_blanket):  # fmt: skip
+def _score_many(true_poses: FloatArray, truth: FloatArray, mean: FloatArray, counters: IdArray, ids: IdArray,
+                robot_info: FloatArray, robot_links: FloatArray, landmark_info: FloatArray, neighbour_index: IdArray,
+                neighbour_info: FloatArray, neighbour_count: IdArray, information_vector: FloatArray,
+                block_position: IdArray, blanket_covariances: FloatArray, d_cap: float, previous_error: FloatArray,
+                wall: BoolArray, wall_penalty: float, divergence_threshold: float, dense_up_to: int,
+                reward: FloatArray, map_error: FloatArray, pose_error: FloatArray, diverged: BoolArray,
+                pose_nees: FloatArray, pose_nees_blanket: FloatArray) -> None:  # fmt: skip
     """Reward, map error, pose error, divergence and the two pose NEES of every env (``SeifExploreEnv.step``).
 
     ``pose_nees`` is left NaN for maps of more than ``dense_up_to`` landmarks: a dense factorisation of
@@ -194,7 +202,9 @@ class SeifExploreVectorEnv(VectorEnv):
         self._previous_error[e] = env._map_error
         self._elapsed[e] = 0
 
-    def reset(self, *, seed: int | list[int | None] | None = None, options: dict[str, Any] | None = None):
+    def reset(
+        self, *, seed: int | list[int | None] | None = None, options: dict[str, Any] | None = None
+    ) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
         """Reset every sub-env (``seed``: an int seeds sub-env ``e`` with ``seed + e``; or a list)."""
         if self._sync is not None:
             return self._sync.reset(seed=seed, options=options)
@@ -221,7 +231,9 @@ class SeifExploreVectorEnv(VectorEnv):
         return {key: value.copy() for key, value in self._observations.items()}
 
     # -- steps ----------------------------------------------------------------------------------
-    def step(self, actions):
+    def step(
+        self, actions: ArrayLike
+    ) -> tuple[dict[str, np.ndarray], FloatArray, BoolArray, BoolArray, dict[str, Any]]:
         """Advance every sub-env by one step (``actions``: shape (N, 2), finite)."""
         if self._sync is not None:
             return self._sync.step(actions)
@@ -300,8 +312,9 @@ class SeifExploreVectorEnv(VectorEnv):
                 infos = self._replace_info(infos, info, e)
         return observations, rewards, terminated, truncated, infos
 
-    def _step_infos(self, controls, executed, wall, ranges, bearings, ids, counts, map_error, pose_error, diverged,
-                    pose_nees, pose_nees_blanket) -> dict[str, Any]:  # fmt: skip
+    def _step_infos(self, controls: FloatArray, executed: FloatArray, wall: BoolArray, ranges: FloatArray,
+                    bearings: FloatArray, ids: IdArray, counts: IdArray, map_error: FloatArray, pose_error: FloatArray,
+                    diverged: BoolArray, pose_nees: FloatArray, pose_nees_blanket: FloatArray) -> dict[str, Any]:  # fmt: skip
         """The batched infos of a step: the single env's keys, each with its ``_key`` mask."""
         n = self.num_envs
         filters, world = self._filters, self._world
@@ -360,7 +373,8 @@ class SeifExploreVectorEnv(VectorEnv):
         return self._add_info(infos, info, e)
 
     # -- the rest of the API ---------------------------------------------------------------------------
-    def render(self):
+    # VectorEnv.render returns a tuple of frames; this one returns sub-env 0's frame (the fallback: the tuple)
+    def render(self) -> tuple[Any, ...] | NDArray[np.uint8] | None:  # type: ignore[override]
         """The frame of sub-env 0 (``render_mode="rgb_array"``), drawn by the single env that runs beside it."""
         if self._sync is not None:
             return self._sync.render()

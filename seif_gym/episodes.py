@@ -43,16 +43,17 @@ from __future__ import annotations
 import json
 import math
 import operator
+import os
 import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, fields
 from pathlib import Path
 from types import MappingProxyType
-from typing import Any, cast
+from typing import Any, SupportsFloat, cast
 
 import gymnasium as gym
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, DTypeLike, NDArray
 
 from seif_gym.envs.explore import SeifExploreEnv, make_models
 from seif_gym.metrics import filter_map_error  # the env's E_t: identical bits
@@ -85,7 +86,7 @@ _ARRAYS: dict[str, tuple[type, tuple]] = {
 }
 
 
-def _read_only(array, dtype) -> NDArray:
+def _read_only(array: ArrayLike, dtype: DTypeLike) -> NDArray:
     result = np.array(array, dtype=dtype, copy=True)
     result.setflags(write=False)
     return result
@@ -100,14 +101,14 @@ def _json_config(config: Mapping[str, Any]) -> str:
         raise TypeError(f"config must hold JSON-serialisable values only: {error}") from None
 
 
-def _plain(value):
+def _plain(value: object) -> Any:
     """Numpy scalars and arrays as Python numbers and lists, for ``json.dumps``."""
     if isinstance(value, (np.generic, np.ndarray)):
         return value.tolist()
     raise TypeError(f"{type(value).__name__} is not JSON serialisable")
 
 
-def _tuples(value):
+def _tuples(value: Any) -> Any:
     """Lists back to tuples (JSON has no tuples; the env's config holds tuples)."""
     if isinstance(value, list):
         return tuple(_tuples(item) for item in value)
@@ -265,7 +266,7 @@ class Episode:
         )
 
     # -- files ---------------------------------------------------------------
-    def save(self, path) -> Path:
+    def save(self, path: str | os.PathLike[str]) -> Path:
         """Write the episode to ``path`` (``np.savez_compressed``; ``.npz`` is appended if missing).
 
         Returns the path written. The file holds plain arrays only (the
@@ -285,7 +286,7 @@ class Episode:
         return path
 
     @classmethod
-    def load(cls, path) -> Episode:
+    def load(cls, path: str | os.PathLike[str]) -> Episode:
         """Read an episode written by :meth:`save` (``allow_pickle=False``)."""
         with np.load(Path(path), allow_pickle=False) as data:
             missing = sorted({"format_version", "config", "seed", "dt", *_ARRAYS} - set(data.files))
@@ -330,7 +331,7 @@ class EpisodeRecorder(gym.Wrapper, gym.utils.RecordConstructorArgs):
     ----------
     env : gymnasium.Env
         The env to record.
-    directory : str or Path, optional
+    directory : str or os.PathLike, optional
         If given, every finished episode (terminated or truncated) is saved
         there as ``episode_{k:05d}.npz``, ``k = 0, 1, ...`` counting the
         finished episodes of this wrapper. Existing files of the same name
@@ -369,7 +370,7 @@ class EpisodeRecorder(gym.Wrapper, gym.utils.RecordConstructorArgs):
     >>> env.close()
     """
 
-    def __init__(self, env: gym.Env, directory=None) -> None:
+    def __init__(self, env: gym.Env, directory: str | os.PathLike[str] | None = None) -> None:
         gym.utils.RecordConstructorArgs.__init__(self, directory=None if directory is None else str(directory))
         gym.Wrapper.__init__(self, env)
         if not isinstance(env.unwrapped, SeifExploreEnv):
@@ -384,7 +385,9 @@ class EpisodeRecorder(gym.Wrapper, gym.utils.RecordConstructorArgs):
         self._buffers: dict[str, Any] = {}
 
     # -- gymnasium API ---------------------------------------------------------------
-    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
+    def reset(
+        self, *, seed: int | None = None, options: dict[str, Any] | None = None
+    ) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
         observation, info = self.env.reset(seed=seed, options=options)
         base = cast(SeifExploreEnv, self.env.unwrapped)  # checked by the constructor
         assert base.world is not None  # just reset
@@ -406,7 +409,7 @@ class EpisodeRecorder(gym.Wrapper, gym.utils.RecordConstructorArgs):
         self._episode = None
         return observation, info
 
-    def step(self, action):
+    def step(self, action: ArrayLike) -> tuple[dict[str, np.ndarray], SupportsFloat, bool, bool, dict[str, Any]]:
         if not self._buffers:
             raise RuntimeError("call reset() before step()")
         if not self._recording:
@@ -526,7 +529,9 @@ ASSOCIATION_NEEDS: tuple[str, ...] = (
 _ENV_FILTER_OPTIONS: dict[str, Any] = {"max_active": None, "mean_recovery": "amortized", "innovation_gate": None}
 
 
-def _default_options(factory, config: Mapping[str, Any], options: dict[str, Any]) -> dict[str, Any]:
+def _default_options(
+    factory: Callable[..., SlamFilter], config: Mapping[str, Any], options: dict[str, Any]
+) -> dict[str, Any]:
     """Add the env's filter options (``max_active``, ``mean_recovery``) where the filter takes them and the caller gave none.
 
     An episode recorded by seif_gym 0.1 has no ``mean_recovery`` in its
@@ -654,10 +659,10 @@ def replay(
     associator = make_associator(str(config.get("ml_association", "individual"))) if association == "ml" else None
     audit = AssociationAudit() if association == "ml" else None
 
-    def measurement(t: int):
+    def measurement(t: int) -> tuple[NDArray[Any], ...]:
         return tuple(np.array(part) for part in episode.measurements(t))  # writable copies, like the env's
 
-    def update(ranges, bearings, true_ids) -> None:
+    def update(ranges: ArrayLike, bearings: ArrayLike, true_ids: ArrayLike) -> None:
         """The env's ``_filter_update``: the true ids, or association scored against them."""
         if associator is None:
             filt.update(ranges, bearings, true_ids)

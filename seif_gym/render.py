@@ -38,11 +38,15 @@ from matplotlib.colors import ListedColormap, to_rgba
 from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 from matplotlib.patches import Circle, Ellipse, Patch, Polygon, Rectangle, Wedge
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
 from seif_gym.metrics import CHI2_95_2DOF as _CHI2_95_2DOF
 
 if TYPE_CHECKING:  # pragma: no cover
+    import scipy.sparse
+
+    from seif_gym.envs.explore import SeifExploreEnv
+    from seif_gym.slam.base import SlamFilter
     from seif_gym.slam.models import RangeBearingSensor
 
 __all__ = ["FRAME_SHAPE", "CHI2_95_2DOF", "Renderer", "ellipse_parameters"]
@@ -70,7 +74,9 @@ _ARENA = "#fbfbf8"
 _OUTSIDE = "#e6e6e6"
 
 
-def ellipse_parameters(covs: NDArray[np.float64], chi2: float = CHI2_95_2DOF) -> tuple[NDArray, NDArray, NDArray]:
+def ellipse_parameters(
+    covs: ArrayLike, chi2: float = CHI2_95_2DOF
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
     """Full widths, heights and angles (degrees) of the ``chi2`` ellipses of covariances ``covs`` (k, 2, 2)."""
     covs = np.asarray(covs, dtype=np.float64).reshape(-1, 2, 2)
     if len(covs) == 0:
@@ -92,7 +98,7 @@ def _robot_outline(pose: NDArray[np.float64], size: float) -> NDArray[np.float64
     return local @ np.array([[c, s], [-s, c]]) + (x, y)
 
 
-def _block_diagonal_covariances(information, n: int) -> NDArray[np.float64]:
+def _block_diagonal_covariances(information: scipy.sparse.csr_array, n: int) -> NDArray[np.float64]:
     """``inv(Omega_ii)`` of every landmark's own 2x2 block of a sparse information matrix."""
     diag = information.diagonal()[3 : 3 + 2 * n]
     off = information.diagonal(1)[3 : 3 + 2 * n : 2]
@@ -105,7 +111,7 @@ def _block_diagonal_covariances(information, n: int) -> NDArray[np.float64]:
     return covs
 
 
-def _covariances(filt) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+def _covariances(filt: SlamFilter) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """Pose covariance (3, 3) and landmark covariances (n, 2, 2), cheaply (see :data:`EXACT_ELLIPSES_LIMIT`)."""
     n = filt.num_landmarks
     information = getattr(filt, "information_matrix", None) if n > EXACT_ELLIPSES_LIMIT else None
@@ -304,7 +310,7 @@ class Renderer:
         moving.sort(key=lambda artist: artist.get_zorder())
 
     # -- one frame -------------------------------------------------------------------
-    def draw(self, env) -> NDArray[np.uint8]:
+    def draw(self, env: SeifExploreEnv) -> NDArray[np.uint8]:
         """Draw the env's current state; returns an RGB frame of :data:`FRAME_SHAPE`, ``uint8``."""
         world, filt = env.world, env.filter
         if world is None or filt is None:
@@ -379,7 +385,7 @@ class Renderer:
                 self.spy_ax.draw_artist(artist)
         self.figure.draw_artist(self._stats)
 
-    def _draw_information(self, filt) -> bool:
+    def _draw_information(self, filt: SlamFilter) -> bool:
         information = getattr(filt, "information_matrix", None)
         spy = self.spy_ax
         if information is None:
@@ -403,7 +409,9 @@ class Renderer:
         self._spy_title.set_text(f"Ω  {dim}×{dim}\nnnz {coo.nnz} ({100 * density:.0f}%)")
         return True
 
-    def _draw_text(self, env, filt, true_pose, est_pose) -> None:
+    def _draw_text(
+        self, env: SeifExploreEnv, filt: SlamFilter, true_pose: NDArray[np.float64], est_pose: NDArray[np.float64]
+    ) -> None:
         name = type(filt).__name__
         max_active = getattr(filt, "max_active", None)
         if name == "SEIF":
@@ -411,6 +419,7 @@ class Renderer:
         spec = getattr(env, "spec", None)
         self._header.set_text(f"{getattr(spec, 'id', None) or 'SeifExplore'} · {name}")
         steps = max(len(env.trajectory) - 1, 0)
+        assert env.world is not None  # draw() checked it
         total = int(env.world.config.num_landmarks)
         lines = [f"step   {steps}", f"mapped {filt.num_landmarks}/{total}"]
         map_error = getattr(env, "_map_error", None)

@@ -83,6 +83,7 @@ from seif_gym.observation import (
     landmark_rows,
     read_belief_map,
 )
+from seif_gym.type_aliases import FloatArray
 
 __all__ = [
     "Agent",
@@ -99,7 +100,6 @@ __all__ = [
     "make_agent",
 ]
 
-FloatArray = NDArray[np.float64]
 Observation = Mapping[str, np.ndarray]
 
 # -- geometry --------------------------------------------------------------------------------------

@@ -61,11 +61,10 @@ from seif_gym.slam import FILTERS, RangeBearingSensor, SlamFilter, VelocityMotio
 from seif_gym.slam.association import AssociationAudit, make_associator
 from seif_gym.slam.base import COMMON_OPTIONS
 from seif_gym.slam.noise_models import PerSecondVelocityMotionModel
+from seif_gym.type_aliases import FloatArray, IntArray
 
 __all__ = ["Episode", "EpisodeRecorder", "ReplayResult", "replay", "episode_models"]
 
-FloatArray = NDArray[np.float64]
-IdArray = NDArray[np.int64]
 
 #: Version of the ``.npz`` layout written by :meth:`Episode.save`.
 FORMAT_VERSION = 1
@@ -182,8 +181,8 @@ class Episode:
     executed_controls: FloatArray
     ranges: FloatArray
     bearings: FloatArray
-    ids: IdArray
-    offsets: IdArray
+    ids: IntArray
+    offsets: IntArray
     rewards: FloatArray
     map_errors: FloatArray
 
@@ -232,7 +231,7 @@ class Episode:
         """Number of steps ``T``."""
         return len(self.commanded_controls)
 
-    def measurements(self, t: int) -> tuple[FloatArray, FloatArray, IdArray]:
+    def measurements(self, t: int) -> tuple[FloatArray, FloatArray, IntArray]:
         """``(ranges, bearings, ids)`` made at time ``t`` (0 = at the reset, ``t`` = after step ``t``).
 
         Read-only views into the episode.
@@ -503,7 +502,7 @@ class ReplayResult:
     """
 
     poses: FloatArray
-    landmark_ids: IdArray
+    landmark_ids: IntArray
     landmarks: FloatArray
     map_errors: FloatArray
     step_seconds: FloatArray

@@ -50,6 +50,7 @@ from numba import njit
 from numpy.typing import ArrayLike, NDArray
 
 from seif_gym.slam.models import wrap_angle
+from seif_gym.type_aliases import FloatArray
 
 if TYPE_CHECKING:  # annotations only
     from seif_gym.slam.association import AssociationAudit
@@ -68,7 +69,6 @@ __all__ = [
     "map_nees",
 ]
 
-FloatArray = NDArray[np.float64]
 
 #: 95 % quantile of the chi-square distribution with 2 degrees of freedom
 #: (``scipy.stats.chi2.ppf(0.95, 2)``, exactly; tested): 95 % ellipses.

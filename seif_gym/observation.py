@@ -26,16 +26,13 @@ from seif_gym.metrics import CHI2_95_2DOF
 from seif_gym.slam._kernels import blanket_covariances, blanket_nodes, conditional_std
 from seif_gym.slam.base import SlamFilter
 from seif_gym.slam.models import RangeBearingSensor
+from seif_gym.type_aliases import Float32Array, FloatArray, IntArray, UInt8Array
 
 __all__ = [
     "ObservationConfig", "BeliefEncoder", "ObservationDecoder", "BeliefRaster", "read_belief_map", "landmark_rows",
     "POSE_FEATURES", "LANDMARK_FEATURES", "MAP_CHANNELS", "DIAGONAL_OVER_HALF",
 ]  # fmt: skip
 
-FloatArray = NDArray[np.float64]
-IdArray = NDArray[np.int64]
-Float32Array = NDArray[np.float32]
-ByteArray = NDArray[np.uint8]
 
 #: Entries of ``obs["pose"]``.
 POSE_FEATURES = ("x", "y", "cos_theta", "sin_theta", "std_x", "std_y", "std_theta")
@@ -87,7 +84,7 @@ class ObservationConfig:
 
 @njit(cache=True)
 def _sweep(
-    coverage: ByteArray,
+    coverage: UInt8Array,
     resolution: float,
     half_arena: float,
     x: float,
@@ -120,7 +117,7 @@ def _sweep(
 
 @njit(cache=True)
 def _belief_map(
-    coverage: ByteArray,
+    coverage: UInt8Array,
     resolution: float,
     half_arena: float,
     x: float,
@@ -130,7 +127,7 @@ def _belief_map(
     extent: float,
     landmarks: FloatArray,
     confidence: FloatArray,
-) -> ByteArray:
+) -> UInt8Array:
     """The (3, size, size) uint8 egocentric raster (0..255); row 0 is ahead, column 0 is left."""
     out = np.zeros((3, size, size), dtype=np.uint8)
     cells = coverage.shape[0]
@@ -163,7 +160,7 @@ def _belief_map(
 
 
 @njit(cache=True)
-def _nearest(x: float, y: float, landmarks: FloatArray, k: int) -> IdArray:
+def _nearest(x: float, y: float, landmarks: FloatArray, k: int) -> IntArray:
     """Indices of the ``k`` landmarks nearest to ``(x, y)``, nearest first (ties: lower index)."""
     n = landmarks.shape[0]
     count = min(k, n)
@@ -196,7 +193,7 @@ def _landmark_features(
     y: float,
     theta: float,
     landmarks: FloatArray,
-    nearest: IdArray,
+    nearest: IntArray,
     covs: FloatArray,
     k: int,
     diagonal: float,
@@ -545,12 +542,12 @@ class ObservationDecoder:
 
 
 @njit(cache=True)
-def encode_many(coverage: ByteArray, resolution: float, half_arena: float, max_range: float, half_fov: float,
+def encode_many(coverage: UInt8Array, resolution: float, half_arena: float, max_range: float, half_fov: float,
                 map_size: int, map_extent: float, nearest_landmarks: int, diagonal: float, std_scale: float,
-                robot_info: FloatArray, robot_links: FloatArray, landmark_info: FloatArray, neighbour_index: IdArray,
-                neighbour_info: FloatArray, neighbour_count: IdArray, information_vector: FloatArray,
-                mean: FloatArray, block_position: IdArray, active: IdArray, counters: IdArray,
-                pose_out: Float32Array, landmarks_out: Float32Array, mask_out: Float32Array, map_out: ByteArray,
+                robot_info: FloatArray, robot_links: FloatArray, landmark_info: FloatArray, neighbour_index: IntArray,
+                neighbour_info: FloatArray, neighbour_count: IntArray, information_vector: FloatArray,
+                mean: FloatArray, block_position: IntArray, active: IntArray, counters: IntArray,
+                pose_out: Float32Array, landmarks_out: Float32Array, mask_out: Float32Array, map_out: UInt8Array,
                 pose_covariance_out: FloatArray) -> None:  # fmt: skip
     """:meth:`BeliefEncoder.sweep` then :meth:`BeliefEncoder.encode` of a batch of SEIFs (``BatchedSEIF`` arrays).
 

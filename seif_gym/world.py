@@ -17,10 +17,10 @@ from numpy.typing import ArrayLike, NDArray
 from seif_gym.slam._kernels import _wrap_float
 from seif_gym.slam.models import RangeBearingSensor, VelocityMotionModel, _visible_measurements, wrap_angle
 from seif_gym.slam.noise_models import PerSecondVelocityMotionModel
+from seif_gym.type_aliases import FloatArray
 
 __all__ = ["LAYOUTS", "WorldConfig", "World", "BatchedWorld", "make_landmarks"]
 
-FloatArray = NDArray[np.float64]
 
 #: Landmark layouts that :func:`make_landmarks` generates; ``"fixed"`` (the given ``landmark_positions``) is the other.
 LAYOUTS = ("uniform", "clustered", "loop")

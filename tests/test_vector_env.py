@@ -76,6 +76,17 @@ def test_vector_env_rejects_bad_actions_before_any_env_moves():
         SeifExploreVectorEnv(1, autoreset_mode="Disabled")
 
 
+def test_sync_backend_renders_sub_env_0_too():
+    env = gym.make_vec("SeifExplore-v1", num_envs=2, max_episode_steps=8, render_mode="rgb_array", filter="ekf")
+    single = gym.make("SeifExplore-v1", max_episode_steps=8, render_mode="rgb_array", filter="ekf")
+    assert env.backend == "sync"
+    env.reset(seed=3)
+    single.reset(seed=3)
+    np.testing.assert_array_equal(env.render(), single.render())  # one frame, as the compiled backend gives
+    env.close()
+    single.close()
+
+
 def test_vector_env_renders_sub_env_0_as_the_single_env_would():
     env = gym.make_vec("SeifExplore-v1", num_envs=2, max_episode_steps=8, render_mode="rgb_array")
     assert isinstance(env, SeifExploreVectorEnv) and env.backend == "compiled"

@@ -93,9 +93,7 @@ from numpy.typing import NDArray
 
 from seif_gym.datasets._arrays import frozen
 from seif_gym.slam.models import wrap_angle
-
-FloatArray = NDArray[np.float64]
-IntArray = NDArray[np.int64]
+from seif_gym.type_aliases import FloatArray, IntArray
 
 #: The robots' subject numbers (in every MRCLAM dataset).
 ROBOTS: tuple[int, ...] = (1, 2, 3, 4, 5)

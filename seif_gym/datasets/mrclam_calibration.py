@@ -69,6 +69,7 @@ from seif_gym.slam.noise_models import (
     PerSecondVelocityMotionModel,
     RangeDependentSensor,
 )
+from seif_gym.type_aliases import FloatArray
 
 __all__ = [
     "FORMAT",
@@ -83,7 +84,6 @@ __all__ = [
     "write_dataset",
 ]
 
-FloatArray = NDArray[np.float64]
 
 #: The ``format`` field of a calibration file.
 FORMAT = "seif_gym.mrclam.calibration/1"

@@ -51,7 +51,6 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
 
 from seif_gym.datasets import mrclam
 from seif_gym.datasets.mrclam_calibration import Calibration
@@ -62,8 +61,6 @@ from seif_gym.progress import Progress
 from seif_gym.slam.models import wrap_angle
 
 __all__ = ["EpisodeConversion", "log_to_episode", "main"]
-
-FloatArray = NDArray[np.float64]
 
 
 @dataclass(frozen=True)

@@ -48,7 +48,6 @@ from typing import Any
 
 import numpy as np
 import scipy.stats
-from numpy.typing import NDArray
 
 from seif_gym.datasets import mrclam
 from seif_gym.datasets.mrclam_calibration import Calibration, calibrate
@@ -56,11 +55,10 @@ from seif_gym.datasets.victoria_park import rigid_alignment
 from seif_gym.progress import Progress
 from seif_gym.slam.models import wrap_angle
 from seif_gym.slam.noise_models import RangeDependentSensor
+from seif_gym.type_aliases import FloatArray, IntArray
 
 __all__ = ["MrclamRun", "RunnerConfig", "chi2_band", "main", "plot_runs", "run_robot", "save_runs", "score", "table"]
 
-FloatArray = NDArray[np.float64]
-IntArray = NDArray[np.int64]
 
 FILTER_NAMES = ("ekf", "eif", "seif", "eseif")
 

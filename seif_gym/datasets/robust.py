@@ -29,6 +29,8 @@ import scipy.optimize
 import scipy.stats
 from numpy.typing import NDArray
 
+from seif_gym.type_aliases import FloatArray
+
 __all__ = [
     "HUBER_K",
     "REJECT_AT",
@@ -44,7 +46,6 @@ __all__ = [
     "trimmed_consistency",
 ]
 
-FloatArray = NDArray[np.float64]
 
 #: Huber's tuning constant for location and regression (95 % efficiency at the Gaussian).
 HUBER_K = 1.345

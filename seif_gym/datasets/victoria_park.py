@@ -52,13 +52,12 @@ from numpy.typing import NDArray
 from seif_gym.datasets._arrays import frozen
 from seif_gym.progress import Progress
 from seif_gym.threads import limit_blas_threads  # noqa: F401  (public here before seif_gym.threads existed)
+from seif_gym.type_aliases import FloatArray, IntArray
 
 if TYPE_CHECKING:
     from seif_gym.slam.association import AssociationStats, Associator
     from seif_gym.slam.base import SlamFilter
 
-FloatArray = NDArray[np.float64]
-IntArray = NDArray[np.int64]
 
 #: File name of the compact NumPy copy inside the data directory.
 FILE_NAME = "victoria_park.npz"

@@ -22,6 +22,7 @@ from seif_gym.slam import FILTERS, SEIF, RangeBearingSensor, SlamFilter, Velocit
 from seif_gym.slam.association import ASSOCIATOR_PRESETS, AssociationAudit, make_associator
 from seif_gym.slam.models import wrap_angle
 from seif_gym.slam.noise_models import PerSecondVelocityMotionModel, RangeDependentSensor
+from seif_gym.type_aliases import FloatArray
 from seif_gym.world import World, WorldConfig, make_landmarks
 
 if TYPE_CHECKING:
@@ -32,7 +33,6 @@ __all__ = [
     "map_error", "filter_map_error",
 ]  # fmt: skip
 
-FloatArray = NDArray[np.float64]
 
 REWARDS = ("map_error", "information_gain")
 
@@ -642,7 +642,7 @@ class SeifExploreEnv(gym.Env):
         }
 
     # -- rendering ------------------------------------------------------------------
-    def render(self) -> NDArray[np.uint8] | None:
+    def render(self) -> Any:  # an RGB frame (uint8, FRAME_SHAPE) or None; gymnasium 1.2 types it as its RenderFrame
         if self.render_mode is None:
             gym.logger.warn("render() called without a render_mode; pass render_mode='rgb_array' or 'human' to make()")
             return None

@@ -38,7 +38,7 @@ import numpy as np
 from gymnasium.vector import AutoresetMode, SyncVectorEnv, VectorEnv
 from gymnasium.vector.utils import batch_space, concatenate, create_empty_array
 from numba import njit
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 
 from seif_gym.envs.explore import Measurements, SeifExploreEnv
 from seif_gym.metrics import map_error_kernel, nees_kernel
@@ -47,20 +47,17 @@ from seif_gym.slam import _kernels
 from seif_gym.slam.batched import BatchedSEIF
 from seif_gym.slam.models import VelocityMotionModel, wrap_angle
 from seif_gym.slam.seif import DENSE_MARGINALS_UP_TO, SEIF, exact_marginal_covariance
+from seif_gym.type_aliases import BoolArray, FloatArray, IntArray
 from seif_gym.world import BatchedWorld
 
 __all__ = ["SeifExploreVectorEnv"]
 
-FloatArray = NDArray[np.float64]
-IdArray = NDArray[np.int64]
-BoolArray = NDArray[np.bool_]
-
 
 @njit(cache=True)
-def _score_many(true_poses: FloatArray, truth: FloatArray, mean: FloatArray, counters: IdArray, ids: IdArray,
-                robot_info: FloatArray, robot_links: FloatArray, landmark_info: FloatArray, neighbour_index: IdArray,
-                neighbour_info: FloatArray, neighbour_count: IdArray, information_vector: FloatArray,
-                block_position: IdArray, blanket_covariances: FloatArray, d_cap: float, previous_error: FloatArray,
+def _score_many(true_poses: FloatArray, truth: FloatArray, mean: FloatArray, counters: IntArray, ids: IntArray,
+                robot_info: FloatArray, robot_links: FloatArray, landmark_info: FloatArray, neighbour_index: IntArray,
+                neighbour_info: FloatArray, neighbour_count: IntArray, information_vector: FloatArray,
+                block_position: IntArray, blanket_covariances: FloatArray, d_cap: float, previous_error: FloatArray,
                 wall: BoolArray, wall_penalty: float, divergence_threshold: float, dense_up_to: int,
                 reward: FloatArray, map_error: FloatArray, pose_error: FloatArray, diverged: BoolArray,
                 pose_nees: FloatArray, pose_nees_blanket: FloatArray) -> None:  # fmt: skip
@@ -313,7 +310,7 @@ class SeifExploreVectorEnv(VectorEnv):
         return observations, rewards, terminated, truncated, infos
 
     def _step_infos(self, controls: FloatArray, executed: FloatArray, wall: BoolArray, ranges: FloatArray,
-                    bearings: FloatArray, ids: IdArray, counts: IdArray, map_error: FloatArray, pose_error: FloatArray,
+                    bearings: FloatArray, ids: IntArray, counts: IntArray, map_error: FloatArray, pose_error: FloatArray,
                     diverged: BoolArray, pose_nees: FloatArray, pose_nees_blanket: FloatArray) -> dict[str, Any]:  # fmt: skip
         """The batched infos of a step: the single env's keys, each with its ``_key`` mask."""
         n = self.num_envs
@@ -373,11 +370,11 @@ class SeifExploreVectorEnv(VectorEnv):
         return self._add_info(infos, info, e)
 
     # -- the rest of the API ---------------------------------------------------------------------------
-    # VectorEnv.render returns a tuple of frames; this one returns sub-env 0's frame (the fallback: the tuple)
-    def render(self) -> tuple[Any, ...] | NDArray[np.uint8] | None:  # type: ignore[override]
-        """The frame of sub-env 0 (``render_mode="rgb_array"``), drawn by the single env that runs beside it."""
-        if self._sync is not None:
-            return self._sync.render()
+    def render(self) -> Any:  # one frame (uint8) or None, where VectorEnv declares a tuple of frames
+        """The frame of sub-env 0 (``render_mode="rgb_array"``), drawn by the single env that runs beside it.
+
+        The same for both backends (the sync one steps these same single envs).
+        """
         if self.render_mode is None:
             gym.logger.warn("render() called without a render_mode; pass render_mode='rgb_array' to make_vec()")
             return None

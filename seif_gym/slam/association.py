@@ -118,10 +118,11 @@ import scipy.linalg
 import scipy.optimize
 import scipy.stats
 from numba import njit
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 
 from seif_gym.slam._kernels import range_bearing_jacobian
 from seif_gym.slam.marginals import breadth_first_joint_covariance, supports_breadth_first
+from seif_gym.type_aliases import FloatArray, IntArray
 
 if TYPE_CHECKING:  # for annotations only
     from seif_gym.slam.base import SlamFilter
@@ -129,8 +130,6 @@ if TYPE_CHECKING:  # for annotations only
 
 __all__ = ["ASSOCIATOR_PRESETS", "Associator", "AssociationStats", "AssociationAudit", "jcbb", "make_associator"]
 
-FloatArray = NDArray[np.float64]
-IntArray = NDArray[np.int64]
 
 #: Cost of a forbidden pair in the assignment problem (far above any gated cost).
 _FORBIDDEN = 1e9

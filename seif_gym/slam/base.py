@@ -24,10 +24,10 @@ from seif_gym.slam._validation import (
 )
 from seif_gym.slam.models import MotionModel, RangeBearingSensor, wrap_angle
 from seif_gym.slam.noise_models import mahalanobis_squared
+from seif_gym.type_aliases import FloatArray
 
 __all__ = ["SlamFilter", "UnknownLandmarkError", "DEFAULT_INITIAL_POSE_COV", "COMMON_OPTIONS"]
 
-FloatArray = NDArray[np.float64]
 
 #: Initial pose covariance when none is given: the map frame is anchored at the
 #: initial pose, so it is known almost exactly (a tiny variance keeps the

@@ -28,7 +28,7 @@ from __future__ import annotations
 
 import numpy as np
 import scipy.linalg
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 
 from seif_gym.slam import _kernels
 from seif_gym.slam._validation import as_finite_array, as_positive_scalar
@@ -36,11 +36,10 @@ from seif_gym.slam.base import DEFAULT_INITIAL_POSE_COV
 from seif_gym.slam.information import InformationStore
 from seif_gym.slam.models import RangeBearingSensor, VelocityMotionModel, wrap_angle
 from seif_gym.slam.seif import SEIF
+from seif_gym.type_aliases import FloatArray, IntArray
 
 __all__ = ["BatchedSEIF"]
 
-FloatArray = NDArray[np.float64]
-IntArray = NDArray[np.int64]
 
 #: positions in ``BatchedSEIF.counters``
 _LANDMARKS, _ACTIVE, _UPDATES, _ROUND_ROBIN = range(4)

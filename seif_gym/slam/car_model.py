@@ -45,14 +45,13 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 
 from seif_gym.slam._validation import _as_real_scalar, as_finite_vector, as_nonnegative_scalar, as_positive_scalar
 from seif_gym.slam.models import wrap_angle
+from seif_gym.type_aliases import FloatArray
 
 __all__ = ["AckermannLaserModel"]
-
-FloatArray = NDArray[np.float64]
 
 
 class AckermannLaserModel:

@@ -28,10 +28,9 @@ from numpy.typing import NDArray
 
 from seif_gym.slam.base import INITIAL_LANDMARK_CAPACITY, SlamFilter, symmetrized
 from seif_gym.slam.models import wrap_angle
+from seif_gym.type_aliases import FloatArray
 
 __all__ = ["EIF"]
-
-FloatArray = NDArray[np.float64]
 
 
 def _spd_inverse(matrix: FloatArray) -> FloatArray:

@@ -17,10 +17,9 @@ from numpy.typing import NDArray
 
 from seif_gym.slam.base import INITIAL_LANDMARK_CAPACITY, SlamFilter, symmetrized
 from seif_gym.slam.models import wrap_angle
+from seif_gym.type_aliases import FloatArray
 
 __all__ = ["EKF"]
-
-FloatArray = NDArray[np.float64]
 
 
 class EKF(SlamFilter):

@@ -51,6 +51,7 @@ from numpy.typing import NDArray
 
 from seif_gym.slam import _kernels
 from seif_gym.slam.seif import SEIF
+from seif_gym.type_aliases import FloatArray, IntArray
 
 __all__ = [
     "ESEIF",
@@ -61,8 +62,6 @@ __all__ = [
     "select_relocalization_landmarks",
 ]
 
-FloatArray = NDArray[np.float64]
-IndexArray = NDArray[np.int64]
 
 #: A relocalization is refused when the pose information it would give has
 #: ``lambda_min < RELOCALIZATION_RCOND * lambda_max`` (a degenerate geometry).
@@ -146,7 +145,7 @@ def marginalize_robot_block(omega: FloatArray, xi: FloatArray) -> tuple[FloatArr
 
 @njit(cache=True)
 def relocalization_pose_information(
-    mean: FloatArray, landmark_info: FloatArray, indices: IndexArray, noise_cov: FloatArray
+    mean: FloatArray, landmark_info: FloatArray, indices: IntArray, noise_cov: FloatArray
 ) -> FloatArray:
     """Pose information ``J_i = H_x^T S_i^-1 H_x`` each measured landmark would give, shape (m, 3, 3).
 
@@ -215,7 +214,7 @@ def _det3(m: FloatArray) -> float:
 
 
 @njit(cache=True)
-def select_relocalization_landmarks(pose_information: FloatArray, count: int, rcond: float) -> IndexArray:
+def select_relocalization_landmarks(pose_information: FloatArray, count: int, rcond: float) -> IntArray:
     """Pick ``count`` measurements whose summed pose information has the largest determinant.
 
     Parameters
@@ -280,7 +279,7 @@ def select_relocalization_landmarks(pose_information: FloatArray, count: int, rc
 class _UpdatePlan(NamedTuple):
     """How one scan is incorporated (positions index the scan's measurements)."""
 
-    withheld: IndexArray  # z_beta; empty for an ordinary update
+    withheld: IntArray  # z_beta; empty for an ordinary update
     split: bool  # z_beta also informs the map through the old pose (weights split_weight, 1 - split_weight)
 
 
@@ -455,7 +454,7 @@ class ESEIF(SEIF):
         self._plan = _ORDINARY
 
     # -- one update ----------------------------------------------------------------
-    def _update_known(self, ranges: FloatArray, bearings: FloatArray, ids: IndexArray) -> None:
+    def _update_known(self, ranges: FloatArray, bearings: FloatArray, ids: IntArray) -> None:
         """The update of the measurements the gate kept; plans it (and what to leave out) first."""
         plan, kept = self._plan_update(ranges, bearings, ids)
         if kept is not None:
@@ -469,7 +468,7 @@ class ESEIF(SEIF):
             self.discarded_measurements += len(kept) - int(np.count_nonzero(kept))
 
     def _measurement_step(
-        self, ranges: FloatArray, bearings: FloatArray, indices: IndexArray, is_new: NDArray[np.bool_]
+        self, ranges: FloatArray, bearings: FloatArray, indices: IntArray, is_new: NDArray[np.bool_]
     ) -> None:
         """One update (inside the SEIF's transaction): ordinary, or a sparsification by relocalization."""
         if np.any(is_new):
@@ -558,6 +557,6 @@ class ESEIF(SEIF):
         self._is_active[block] = False
         self._active = np.empty(0, dtype=np.int64)
 
-    def _relocalize(self, ranges: FloatArray, bearings: FloatArray, indices: IndexArray, weight: float) -> None:
+    def _relocalize(self, ranges: FloatArray, bearings: FloatArray, indices: IntArray, weight: float) -> None:
         """Step (d): the ``z_beta`` factors on the new pose, which has no information before them."""
         self._incorporate(ranges, bearings, indices, weight)

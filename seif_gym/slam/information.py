@@ -33,12 +33,10 @@ from __future__ import annotations
 
 import numpy as np
 import scipy.sparse
-from numpy.typing import NDArray
+
+from seif_gym.type_aliases import FloatArray, IntArray
 
 __all__ = ["InformationStore", "block_slices"]
-
-FloatArray = NDArray[np.float64]
-IndexArray = NDArray[np.int64]
 
 
 def block_slices(count: int) -> list[slice]:
@@ -54,13 +52,13 @@ class InformationStore:
         self.robot_info: FloatArray = np.zeros((3, 3))
         self.robot_links: FloatArray = np.zeros((capacity, 3, 2))
         self.landmark_info: FloatArray = np.zeros((capacity, 2, 2))
-        self.neighbour_index: IndexArray = np.full((capacity, degree), -1, dtype=np.int64)
+        self.neighbour_index: IntArray = np.full((capacity, degree), -1, dtype=np.int64)
         self.neighbour_info: FloatArray = np.zeros((capacity, degree, 2, 2))
-        self.neighbour_count: IndexArray = np.zeros(capacity, dtype=np.int64)
+        self.neighbour_count: IntArray = np.zeros(capacity, dtype=np.int64)
         self.information_vector: FloatArray = np.zeros(3 + 2 * capacity)
         self.mean: FloatArray = np.zeros(3 + 2 * capacity)
         # scratch for the kernels: position of a landmark in the current block, -1 if absent
-        self.block_position: IndexArray = np.full(capacity, -1, dtype=np.int64)
+        self.block_position: IntArray = np.full(capacity, -1, dtype=np.int64)
 
     # -- capacity ------------------------------------------------------------
     @property
@@ -95,7 +93,7 @@ class InformationStore:
             new[: 3 + 2 * n] = old[: 3 + 2 * n]
             setattr(self, name, new)
 
-    def reserve_degree(self, landmarks: IndexArray, extra: int) -> None:
+    def reserve_degree(self, landmarks: IntArray, extra: int) -> None:
         """Make sure each of ``landmarks`` can take ``extra`` more neighbours."""
         if len(landmarks) == 0:
             return
@@ -154,7 +152,7 @@ class InformationStore:
         slots = np.flatnonzero(self.neighbour_index[i, : self.neighbour_count[i]] == j)
         return int(slots[0]) if len(slots) else -1
 
-    def gather(self, landmarks: IndexArray) -> tuple[FloatArray, FloatArray, FloatArray]:
+    def gather(self, landmarks: IntArray) -> tuple[FloatArray, FloatArray, FloatArray]:
         """Dense ``Omega``, ``xi`` and ``mu`` over the robot and ``landmarks``.
 
         The block is ordered robot first, then ``landmarks`` in the given order.
@@ -179,7 +177,7 @@ class InformationStore:
                         omega[slices[p], slices[q]] = self.neighbour_info[i, slot]
         return omega, xi, mu
 
-    def scatter(self, landmarks: IndexArray, omega: FloatArray, xi: FloatArray) -> None:
+    def scatter(self, landmarks: IntArray, omega: FloatArray, xi: FloatArray) -> None:
         """Write a dense block over the robot and ``landmarks`` back.
 
         Landmark-landmark links that are exactly zero and not stored yet stay

@@ -32,17 +32,15 @@ from typing import TYPE_CHECKING, Protocol, TypeGuard
 
 import numpy as np
 import scipy.linalg
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 
 from seif_gym.slam import _kernels
+from seif_gym.type_aliases import FloatArray, IntArray
 
 if TYPE_CHECKING:  # for annotations only
     from seif_gym.slam.information import InformationStore
 
 __all__ = ["breadth_first_nodes", "breadth_first_joint_covariance", "supports_breadth_first"]
-
-FloatArray = NDArray[np.float64]
-IntArray = NDArray[np.int64]
 
 
 class _StoreFilter(Protocol):

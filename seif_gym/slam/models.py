@@ -25,6 +25,7 @@ from seif_gym.slam._validation import (
     as_finite_vector,
     as_positive_scalar,
 )
+from seif_gym.type_aliases import FloatArray
 
 __all__ = [
     "wrap_angle",
@@ -32,8 +33,6 @@ __all__ = [
     "VelocityMotionModel",
     "RangeBearingSensor",
 ]
-
-FloatArray = NDArray[np.float64]
 
 
 @overload

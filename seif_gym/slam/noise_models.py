@@ -42,6 +42,7 @@ from seif_gym.slam._validation import (
     as_positive_scalar,
 )
 from seif_gym.slam.models import MotionModel, RangeBearingSensor, _sinc_and_derivative, wrap_angle
+from seif_gym.type_aliases import FloatArray
 
 __all__ = [
     "CommandCorrection",
@@ -50,8 +51,6 @@ __all__ = [
     "RangeDependentSensor",
     "mahalanobis_squared",
 ]
-
-FloatArray = NDArray[np.float64]
 
 
 def _density(value: ArrayLike, name: str) -> tuple[float, float, float]:

@@ -37,6 +37,7 @@ from seif_gym.slam import _kernels
 from seif_gym.slam.base import SlamFilter
 from seif_gym.slam.information import InformationStore
 from seif_gym.slam.models import wrap_angle
+from seif_gym.type_aliases import FloatArray, IntArray
 
 __all__ = [
     "SEIF",
@@ -53,9 +54,6 @@ __all__ = [
     "UpdateJournal",
     "blanket_covariances",
 ]
-
-FloatArray = NDArray[np.float64]
-IndexArray = NDArray[np.int64]
 
 
 # ---------------------------------------------------------------------------
@@ -188,7 +186,7 @@ def sparsify(omega: FloatArray, xi: FloatArray, mu: FloatArray, num_kept: int) -
     m0 = np.arange(start_m0, size)
     xm0 = np.concatenate([x, m0])
 
-    def project(indices: IndexArray, matrix: FloatArray) -> FloatArray:
+    def project(indices: IntArray, matrix: FloatArray) -> FloatArray:
         F = np.zeros((size, len(indices)))
         F[indices, np.arange(len(indices))] = 1.0
         return matrix @ F @ np.linalg.solve(F.T @ matrix @ F, F.T @ matrix)
@@ -201,7 +199,7 @@ def sparsify(omega: FloatArray, xi: FloatArray, mu: FloatArray, num_kept: int) -
     return omega_tilde, xi_tilde
 
 
-def recover_mean_amortized(store: InformationStore, landmarks: IndexArray, active: IndexArray) -> None:
+def recover_mean_amortized(store: InformationStore, landmarks: IntArray, active: IntArray) -> None:
     """Coordinate descent on ``1/2 mu^T Omega mu - xi^T mu`` for some landmarks, then the robot.
 
     Updates ``store.mean`` in place: each landmark of ``landmarks`` in turn,
@@ -231,7 +229,7 @@ def recover_mean_amortized(store: InformationStore, landmarks: IndexArray, activ
 DENSE_MARGINALS_UP_TO = 60
 
 
-def exact_marginal_covariance(store: InformationStore, state_indices: IndexArray,
+def exact_marginal_covariance(store: InformationStore, state_indices: IntArray,
                               dense_up_to: int = DENSE_MARGINALS_UP_TO) -> FloatArray:  # fmt: skip
     """Exact marginal covariance ``[Omega^-1]`` over ``state_indices``: a global solve, never constant time.
 
@@ -267,14 +265,14 @@ class RecoveryQueue:
     """
 
     def __init__(self, capacity: int = 64) -> None:
-        self.items: IndexArray = np.full(capacity, -1, dtype=np.int64)
+        self.items: IntArray = np.full(capacity, -1, dtype=np.int64)
         self.queued: NDArray[np.bool_] = np.zeros(capacity, dtype=bool)
-        self.state: IndexArray = np.zeros(2, dtype=np.int64)
+        self.state: IntArray = np.zeros(2, dtype=np.int64)
 
     def __len__(self) -> int:
         return int(self.state[1])
 
-    def ordered(self) -> IndexArray:
+    def ordered(self) -> IntArray:
         """The queued landmarks, first to be relaxed first."""
         head, size = int(self.state[0]), int(self.state[1])
         return self.items[(head + np.arange(size)) % len(self.items)]
@@ -310,8 +308,8 @@ class RecoveryQueue:
 def recover_mean_wavefront(
     store: InformationStore,
     queue: RecoveryQueue,
-    active: IndexArray,
-    seeds: IndexArray,
+    active: IntArray,
+    seeds: IntArray,
     budget: int,
     relaxation: float,
     tolerance: float,
@@ -398,15 +396,15 @@ class JournalBuffer:
     """
 
     def __init__(self, rows: int = 32, width: int = 16) -> None:
-        self.rows: IndexArray = np.zeros(rows, dtype=np.int64)
+        self.rows: IntArray = np.zeros(rows, dtype=np.int64)
         self.links: FloatArray = np.zeros((rows, 3, 2))
         self.info: FloatArray = np.zeros((rows, 2, 2))
-        self.index: IndexArray = np.zeros((rows, width), dtype=np.int64)
+        self.index: IntArray = np.zeros((rows, width), dtype=np.int64)
         self.neighbours: FloatArray = np.zeros((rows, width, 2, 2))
-        self.counts: IndexArray = np.zeros(rows, dtype=np.int64)
+        self.counts: IntArray = np.zeros(rows, dtype=np.int64)
         self.values: FloatArray = np.zeros((rows, 4))
         self.flags: NDArray[np.bool_] = np.zeros(rows, dtype=bool)
-        self.observed: IndexArray = np.zeros(rows, dtype=np.int64)
+        self.observed: IntArray = np.zeros(rows, dtype=np.int64)
 
     def reserve(self, rows: int, width: int, keep: int) -> None:
         """Room for ``rows`` entries of ``width`` neighbour slots, keeping the first ``keep`` entries."""
@@ -443,7 +441,7 @@ class UpdateJournal:
     )  # fmt: skip
     _FILTER_ARRAYS = ("_active", "_is_active", "_last_observed")
 
-    def __init__(self, filt: SEIF, landmarks: IndexArray | None = None) -> None:
+    def __init__(self, filt: SEIF, landmarks: IntArray | None = None) -> None:
         store, queue = filt._store, filt._queue
         self._filter = filt
         # in the order of _STORE_ARRAYS and _FILTER_ARRAYS (spelled out: this runs twice per filter step)
@@ -458,12 +456,12 @@ class UpdateJournal:
         self._queue = (queue.items, queue.queued, queue.state, queue.state.copy())
         self._saved = 0  # entries of filt._journal_buffer
         self._full_mean: FloatArray | None = None
-        self._queue_copy: tuple[IndexArray, NDArray[np.bool_]] | None = None
+        self._queue_copy: tuple[IntArray, NDArray[np.bool_]] | None = None
         self._wavefront_logs: list[tuple] = []
         if landmarks is not None:
             self.save_landmarks(landmarks)
 
-    def save_landmarks(self, landmarks: IndexArray) -> None:
+    def save_landmarks(self, landmarks: IntArray) -> None:
         """Save the rows of ``landmarks`` (state orders) before a stage writes them.
 
         A row saved twice keeps its first (untouched) copy. Rows beyond the
@@ -526,9 +524,7 @@ def recover_mean_exact(store: InformationStore) -> None:
     store.mean[: store.state_dim] = solver.solve(store.information_vector_view())
 
 
-def blanket_covariances(
-    store: InformationStore, nodes: IndexArray, targets: IndexArray
-) -> tuple[FloatArray, FloatArray]:
+def blanket_covariances(store: InformationStore, nodes: IntArray, targets: IntArray) -> tuple[FloatArray, FloatArray]:
     """Covariances of the robot and of ``targets`` from the block over the robot and ``nodes``.
 
     ``nodes`` must contain every landmark of ``targets``. The block's inverse
@@ -545,7 +541,7 @@ def blanket_covariances(
     return 0.5 * (cov[:3, :3] + cov[:3, :3].T), 0.5 * (landmark_covs + landmark_covs.transpose(0, 2, 1))
 
 
-def _rewrap_heading(store: InformationStore, active: IndexArray) -> None:
+def _rewrap_heading(store: InformationStore, active: IntArray) -> None:
     """Wrap the heading of ``mu`` into ``[-pi, pi)`` and shift ``xi`` with it.
 
     Moving ``mu_theta`` by ``c`` moves ``Omega mu`` by ``c`` times the heading
@@ -664,10 +660,10 @@ class SEIF(SlamFilter):
         self._store.robot_info[:] = 0.5 * (self._store.robot_info + self._store.robot_info.T)
         self._store.mean[:3] = pose
         self._store.information_vector[:3] = self._store.robot_info @ pose
-        self._active: IndexArray = np.empty(0, dtype=np.int64)
+        self._active: IntArray = np.empty(0, dtype=np.int64)
         # per landmark: is it active, and the update count when it was last observed
         self._is_active: NDArray[np.bool_] = np.zeros(self._store.capacity, dtype=bool)
-        self._last_observed: IndexArray = np.zeros(self._store.capacity, dtype=np.int64)
+        self._last_observed: IntArray = np.zeros(self._store.capacity, dtype=np.int64)
         self._update_count = 0
         self._round_robin = 0
         self._queue = RecoveryQueue(self._store.capacity)
@@ -704,7 +700,7 @@ class SEIF(SlamFilter):
         _rewrap_heading(store, self._active)
 
     # -- steps 2-4 ---------------------------------------------------------------
-    def _update(self, ranges: FloatArray, bearings: FloatArray, indices: IndexArray, is_new: NDArray[np.bool_]) -> None:
+    def _update(self, ranges: FloatArray, bearings: FloatArray, indices: IntArray, is_new: NDArray[np.bool_]) -> None:
         # every stage writes into the rows of the robot, the active and the observed landmarks, or logs
         rows = [self._active, indices]
         if self.mean_recovery == "amortized":  # the round robin's next batches (an ESEIF update recovers twice)
@@ -720,7 +716,7 @@ class SEIF(SlamFilter):
             self._journal = None
 
     def _measurement_step(
-        self, ranges: FloatArray, bearings: FloatArray, indices: IndexArray, is_new: NDArray[np.bool_]
+        self, ranges: FloatArray, bearings: FloatArray, indices: IntArray, is_new: NDArray[np.bool_]
     ) -> None:
         """Steps 2-4 (inside a transaction): measurement update, mean recovery, sparsification."""
         if is_new.any():
@@ -744,7 +740,7 @@ class SEIF(SlamFilter):
             self._is_active = np.concatenate([self._is_active, np.zeros(grow, dtype=bool)])
         self._queue.grow(store.capacity)
 
-    def _incorporate(self, ranges: FloatArray, bearings: FloatArray, indices: IndexArray, weight: float = 1.0) -> None:
+    def _incorporate(self, ranges: FloatArray, bearings: FloatArray, indices: IntArray, weight: float = 1.0) -> None:
         """``SEIF.md`` section 2 with these measurements; their landmarks become active.
 
         ``weight`` scales the measurement information ``Q^-1`` (the ESEIF's
@@ -818,7 +814,7 @@ class SEIF(SlamFilter):
                 recover_mean_amortized(store, landmarks, self._active)
         _rewrap_heading(store, self._active)
 
-    def _passive_batch(self) -> IndexArray:
+    def _passive_batch(self) -> IntArray:
         """The next ``recovery_landmarks`` landmarks in round robin (active ones skipped later)."""
         n = self.num_landmarks
         count = min(self.recovery_landmarks, n)
@@ -915,7 +911,7 @@ class SEIF(SlamFilter):
         """
         return self.local_marginals_trusted(self._check_landmark_indices(landmark_indices))
 
-    def local_marginals_trusted(self, indices: IndexArray) -> tuple[FloatArray, FloatArray]:
+    def local_marginals_trusted(self, indices: IntArray) -> tuple[FloatArray, FloatArray]:
         """:meth:`local_marginals` without input checks (valid int64 state orders)."""
         store = self._store
         if self._compiled:
@@ -969,7 +965,7 @@ class SEIF(SlamFilter):
     #: Up to this many landmarks, exact marginals factorise the dense ``Omega`` (:func:`exact_marginal_covariance`).
     DENSE_MARGINALS_UP_TO: ClassVar[int] = DENSE_MARGINALS_UP_TO
 
-    def _marginal_covariance(self, state_indices: IndexArray) -> FloatArray:
+    def _marginal_covariance(self, state_indices: IntArray) -> FloatArray:
         """Exact marginal covariance ``[Omega^-1]`` over ``state_indices`` (:func:`exact_marginal_covariance`)."""
         return exact_marginal_covariance(self._store, state_indices, self.DENSE_MARGINALS_UP_TO)
 

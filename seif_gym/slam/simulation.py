@@ -39,6 +39,7 @@ from numpy.typing import ArrayLike, NDArray
 from seif_gym.metrics import pose_nees  # noqa: F401  (after the slam imports: metrics imports slam.models)
 from seif_gym.slam._validation import as_finite_array, as_finite_vector, as_positive_scalar
 from seif_gym.slam.models import wrap_angle
+from seif_gym.type_aliases import FloatArray, IntArray
 
 if TYPE_CHECKING:  # imported for annotations only: no import cycle at run time
     from seif_gym.slam.base import SlamFilter
@@ -53,9 +54,6 @@ __all__ = [
     "run_filter",
     "pose_nees",
 ]
-
-FloatArray = NDArray[np.float64]
-IdArray = NDArray[np.int64]
 
 
 def _read_only(array: NDArray) -> NDArray:
@@ -94,7 +92,7 @@ class SimulatedRun:
     dt: float
     ranges: tuple[FloatArray, ...]
     bearings: tuple[FloatArray, ...]
-    ids: tuple[IdArray, ...]
+    ids: tuple[IntArray, ...]
     initial_pose: FloatArray
 
     @property
@@ -103,7 +101,7 @@ class SimulatedRun:
         return len(self.controls)
 
     @property
-    def measurement_counts(self) -> IdArray:
+    def measurement_counts(self) -> IntArray:
         """Number of landmarks seen after each step, shape (T,)."""
         return np.array([len(ids) for ids in self.ids], dtype=np.int64)
 
@@ -159,7 +157,7 @@ def simulate_run(
     poses[0] = pose
     ranges: list[FloatArray] = []
     bearings: list[FloatArray] = []
-    ids: list[IdArray] = []
+    ids: list[IntArray] = []
     for t, control in enumerate(controls):
         if noise_free:
             pose = motion.predict(pose, control, dt)

@@ -169,6 +169,7 @@ class World:
         sensor: RangeBearingSensor,
         landmarks: ArrayLike,
         initial_pose: ArrayLike,
+        range_error_memory: float = 0.0,
     ) -> None:
         self.config = config
         self.motion = motion
@@ -176,6 +177,12 @@ class World:
         self.landmarks = np.asarray(landmarks, dtype=np.float64)
         self.landmarks.setflags(write=False)
         self.pose = np.asarray(initial_pose, dtype=np.float64).copy()
+        if not (isinstance(range_error_memory, (int, float)) and 0.0 <= range_error_memory < 1.0):
+            raise ValueError(f"range_error_memory must be in [0, 1), got {range_error_memory!r}")
+        # rho of each landmark's unit range error u_i (an AR(1) sampled once per measure(): an
+        # Ornstein-Uhlenbeck process at the env's step); 0: white errors, drawn by the sensor
+        self.range_error_memory = float(range_error_memory)
+        self._unit_range_errors: FloatArray | None = None
 
     def inside(self, position: FloatArray) -> bool:
         hx, hy = self.config.half_extent
@@ -198,8 +205,24 @@ class World:
         return executed, hit_wall
 
     def measure(self, rng: np.random.Generator) -> tuple[FloatArray, FloatArray, NDArray[np.int64]]:
-        """Noisy ``(ranges, bearings, ids)`` of the visible landmarks."""
-        return self.sensor.sample_trusted(self.pose, self.landmarks, rng)
+        """Noisy ``(ranges, bearings, ids)`` of the visible landmarks.
+
+        With ``range_error_memory`` ``rho > 0`` each landmark's range error is
+        ``sigma_r(r) u_i`` with ``u_i`` a stationary unit-variance AR(1)
+        process advanced at every call (all landmarks, seen or not):
+        ``u_i <- rho u_i + sqrt(1 - rho^2) xi_i``, started from ``N(0, 1)``.
+        """
+        if self.range_error_memory == 0.0:
+            return self.sensor.sample_trusted(self.pose, self.landmarks, rng)
+        count = len(self.landmarks)
+        if self._unit_range_errors is None:
+            self._unit_range_errors = rng.standard_normal(count)
+        else:
+            rho = self.range_error_memory
+            self._unit_range_errors = rho * self._unit_range_errors + math.sqrt(1.0 - rho * rho) * rng.standard_normal(
+                count
+            )
+        return self.sensor.sample_with_range_errors(self.pose, self.landmarks, self._unit_range_errors, rng)
 
 
 # -- many worlds in one call (the native vector env) -------------------------------------------------

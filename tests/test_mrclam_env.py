@@ -101,3 +101,36 @@ def test_describe_world_measures_simulated_logs():
         mc.describe_world([])
     # the world survives the file round trip and configures the variant
     assert mc.Calibration.from_dict(mc.Calibration(world=world).to_dict()).world == world
+
+
+def test_correlated_range_errors_are_a_stationary_ar1_process():
+    """range_error_time: each landmark's unit range error is AR(1) with rho = exp(-dt / tau), variance 1."""
+    from seif_gym.world import World
+
+    env = SeifExploreEnv(num_landmarks=1, sensor_range=50.0, fov=2 * np.pi, range_error_time=2.0, dt=0.5)
+    env.reset(seed=0)
+    world = env.world
+    assert world.range_error_memory == pytest.approx(np.exp(-0.25))
+    truth = float(np.hypot(*(world.landmarks[0] - world.pose[:2])))
+    rng = np.random.default_rng(1)
+    errors = np.array([world.measure(rng)[0][0] - truth for _ in range(20000)]) / env.sensor_config.sigma_range
+    assert abs(np.mean(errors)) < 0.1 and abs(np.std(errors) - 1.0) < 0.06
+    lag1 = np.corrcoef(errors[:-1], errors[1:])[0, 1]
+    assert lag1 == pytest.approx(np.exp(-0.25), abs=0.03)
+    white = World(world.config, env.motion, env.sensor, world.landmarks, world.pose)
+    samples = np.array([white.measure(rng)[0][0] for _ in range(5000)])
+    assert abs(np.corrcoef(samples[:-1], samples[1:])[0, 1]) < 0.05  # the default: white
+    with pytest.raises(ValueError, match="range_error_memory"):
+        World(world.config, env.motion, env.sensor, world.landmarks, world.pose, range_error_memory=1.0)
+    with pytest.raises(ValueError, match="range_error_time"):
+        SeifExploreEnv(range_error_time=0.0)
+
+
+def test_the_variant_has_the_logs_range_error_time():
+    from seif_gym.envs.mrclam import range_error_time
+
+    data = json.loads(MRCLAM_CALIBRATION.read_text())
+    tau = range_error_time(data)
+    assert 10.0 < tau < 25.0  # rho(5 s) = 0.71-0.80 on Dataset 6
+    assert gym.make("SeifExploreMRCLAM-v0").unwrapped.sensor_config.range_error_time == round(tau, 2)
+    assert range_error_time({}) is None

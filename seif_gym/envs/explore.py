@@ -102,6 +102,8 @@ class SensorConfig:
     sigma_bearing: float = math.radians(2.0)
     #: ``(a, lo, hi)``: range noise ``clip(a r, lo, hi)`` (``RangeDependentSensor``) instead of ``sigma_range``.
     range_noise: tuple[float, ...] | None = None
+    #: Correlation time of each landmark's range error, s (``None``: white errors).
+    range_error_time: float | None = None
 
     def __post_init__(self) -> None:
         for name in ("sensor_range", "fov", "sigma_range", "sigma_bearing"):
@@ -121,6 +123,8 @@ class SensorConfig:
                 raise ValueError(
                     f"range_noise must be (a, lo, hi) with a > 0 and 0 < lo <= hi, got {self.range_noise!r}"
                 )
+        if self.range_error_time is not None:
+            _check_positive("range_error_time", self.range_error_time)
 
 
 def make_models(
@@ -327,6 +331,7 @@ class SeifExploreEnv(gym.Env):
     | `sigma_range`, `sigma_bearing` | 0.1, 2° | measurement noise |
     | `motion_noise` | (0.01, 0.001, 0.001, 0.01, 0.0005, 0.0005) | Thrun's α1…α6; with `motion_model="per_second"` nine noise densities per second: forward, turn and lateral, each `(constant, per v², per ω²)` (`PerSecondVelocityMotionModel`) |
     | `motion_model` | `"thrun"` | `"thrun"` (Thrun's model: its noise shrinks with `dt`) or `"per_second"` (dt-linear noise, as calibrated on real robots: `seif_gym.datasets.mrclam`) |
+    | `range_error_time` | `None` | correlation time of each landmark's range error, s: an Ornstein-Uhlenbeck process (`exp(-dt/τ)` per step) scaled by the range noise, as real range errors drift (MRCLAM: 0.7 after 5 s); the filter still assumes white noise. `None`: white |
     | `range_noise` | `None` | `(a, lo, hi)`: range noise `clip(a·r, lo, hi)` growing with range (`RangeDependentSensor`), used instead of `sigma_range` |
     | `dt` | 0.25 | seconds per step |
     | `max_speed`, `max_turn_rate` | 1.0, 1.0 | action scaling, m/s and rad/s |
@@ -350,7 +355,7 @@ class SeifExploreEnv(gym.Env):
     * v0 of `SeifExploreMRCLAM`: the MRCLAM Dataset 6 arena, its surveyed
       landmarks, the robots' limits and camera, the calibrated noise (issue 11).
     * Keyword arguments `arena_extent`, `landmark_positions` (and the layout
-      `"fixed"`), `motion_model`, `range_noise` and `innovation_gate` (seif_gym 0.3): the
+      `"fixed"`), `motion_model`, `range_noise`, `range_error_time` and `innovation_gate` (seif_gym 0.3): the
       per-second motion noise and range-dependent range noise calibrated on
       real robots (`Calibration.env_kwargs()` of
       `seif_gym.datasets.mrclam_calibration`), and the filters' innovation
@@ -382,6 +387,7 @@ class SeifExploreEnv(gym.Env):
         motion_noise: tuple[float, ...] = (0.01, 0.001, 0.001, 0.01, 0.0005, 0.0005),
         motion_model: str = "thrun",
         range_noise: tuple[float, float, float] | None = None,
+        range_error_time: float | None = None,
         dt: float = 0.25,
         max_speed: float = 1.0,
         max_turn_rate: float = 1.0,
@@ -416,6 +422,7 @@ class SeifExploreEnv(gym.Env):
         self.sensor_config = SensorConfig(
             sensor_range=sensor_range, fov=fov, sigma_range=sigma_range, sigma_bearing=sigma_bearing,
             range_noise=None if range_noise is None else tuple(range_noise),
+            range_error_time=range_error_time,
         )  # fmt: skip
         self.filter_config = FilterConfig(
             filter=filter, max_active=max_active, data_association=data_association,
@@ -490,7 +497,9 @@ class SeifExploreEnv(gym.Env):
         else:  # the middle half of the walled area in each direction
             hx, hy = (0.5 * half for half in config.half_extent)
             start = np.array([*start_rng.uniform((-hx, -hy), (hx, hy)), start_rng.uniform(-math.pi, math.pi)])
-        self.world = World(config, self.motion, self.sensor, landmarks, start)
+        error_time = self.sensor_config.range_error_time
+        memory = 0.0 if error_time is None else math.exp(-self.robot_config.dt / error_time)
+        self.world = World(config, self.motion, self.sensor, landmarks, start, range_error_memory=memory)
         self.filter = make_filter(self.filter_config.filter, self.motion, self.sensor, start, **self._filter_options())
         ml = self.filter_config.data_association == "ml"
         self.associator = make_associator(self.filter_config.ml_association) if ml else None

@@ -151,7 +151,7 @@ class SeifExploreVectorEnv(VectorEnv):
         compiled = (config.filter == "seif" and config.data_association == "known" and config.mean_recovery == "wavefront"
                     and template.reward_config.reward == "map_error" and not template.measure_time
                     and config.innovation_gate is None and isinstance(template.motion, VelocityMotionModel)
-                    and template.world_config.arena_extent is None
+                    and template.world_config.arena_extent is None and template.sensor_config.range_error_time is None
                     and not getattr(template.sensor, "range_dependent", False))  # fmt: skip
         #: ``"compiled"`` (batched kernels) or ``"sync"`` (a SyncVectorEnv of single envs, for other configurations)
         self.backend = "compiled" if compiled else "sync"

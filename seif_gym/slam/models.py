@@ -456,3 +456,23 @@ class RangeBearingSensor:
         bearings = (z[:, 1] + noise[:, 1] * self.sigma_bearing + np.pi) % (2.0 * np.pi) - np.pi
         visible_ids = visible if ids is None else np.asarray(ids)[visible].astype(np.int64)
         return ranges, bearings, visible_ids
+
+    def range_sigma(self, ranges: ArrayLike) -> FloatArray:
+        """The range noise's standard deviation at each range, m (constant here: ``sigma_range``)."""
+        return np.full(np.shape(ranges), self.sigma_range)
+
+    def sample_with_range_errors(
+        self, pose: FloatArray, landmarks: FloatArray, unit_range_errors: FloatArray, rng: np.random.Generator
+    ) -> tuple[FloatArray, FloatArray, NDArray[np.int64]]:
+        """Noisy ``(ranges, bearings, ids)`` whose range errors are given (unchecked, for the simulator).
+
+        Landmark ``i``'s range error is ``range_sigma(r_i) * unit_range_errors[i]`` (a time-correlated
+        process that the caller keeps, ``seif_gym.world.World``); the bearing noise is drawn here, white.
+        """
+        visible, z = _visible_measurements(
+            float(pose[0]), float(pose[1]), float(pose[2]), landmarks, self.max_range, 0.5 * self.fov
+        )
+        ranges = np.abs(z[:, 0] + self.range_sigma(z[:, 0]) * unit_range_errors[visible])
+        noise = rng.standard_normal(len(visible))
+        bearings = (z[:, 1] + noise * self.sigma_bearing + np.pi) % (2.0 * np.pi) - np.pi
+        return ranges, bearings, visible

@@ -131,6 +131,7 @@ import argparse
 import csv
 import json
 import math
+import os
 import re
 import sys
 import time
@@ -594,14 +595,18 @@ def _fmt(value: float, digits: int = 3) -> str:
     return f"{value:.{digits}f}"
 
 
-def _group(rows, series, keys):
+def _group(
+    rows: Sequence[Mapping[str, Any]], series: Sequence[Mapping[str, np.ndarray]], keys: Sequence[str]
+) -> dict[tuple, list[int]]:
     groups: dict[tuple, list[int]] = {}
     for i, row in enumerate(rows):
         groups.setdefault(tuple(row[k] for k in keys), []).append(i)
     return groups
 
 
-def _sigma_ratio(rows, series, indices) -> float:
+def _sigma_ratio(
+    rows: Sequence[Mapping[str, Any]], series: Sequence[Mapping[str, np.ndarray]], indices: Sequence[int]
+) -> float:
     """Mean over runs and steps 1.. of ``pose_sigma / pose_sigma(ekf)`` on the same episode (NaN without an EKF)."""
     reference = {(r["policy"], r["layout"], r["seed"]): series[i] for i, r in enumerate(rows) if r["filter"] == "ekf"}
     ratios = []
@@ -622,7 +627,7 @@ def _aggregate(
     curves = [series[i] for i in indices]
     length = max(len(c["pose_nees"]) for c in curves)
 
-    def mean(key):
+    def mean(key: str) -> float:
         values = np.array([row[key] for row in chosen], dtype=float)
         return float(np.nanmean(values)) if np.any(np.isfinite(values)) else math.nan
 
@@ -764,7 +769,9 @@ def write_outputs(
     return paths
 
 
-def _plots(rows, series, paths) -> None:
+def _plots(
+    rows: Sequence[Mapping[str, Any]], series: Sequence[Mapping[str, np.ndarray]], paths: Mapping[str, Path]
+) -> None:
     import matplotlib
 
     matplotlib.use("Agg", force=False)
@@ -778,16 +785,16 @@ def _plots(rows, series, paths) -> None:
     steps = np.arange(length)
     width = 4.2 * len(policies) + 1.5
 
-    def runs_of(policy, name):
+    def runs_of(policy: str, name: str) -> list[Mapping[str, np.ndarray]]:
         return [series[i] for i in by_pair.get((policy, name), [])]
 
-    def panels(nrows: int = 1):
+    def panels(nrows: int = 1) -> tuple[Any, Any]:
         fig, axes = plt.subplots(
             nrows, len(policies), figsize=(width, 3.6 * nrows), dpi=110, squeeze=False, sharex=True
         )
         return fig, axes
 
-    def finish(fig, axes, path):
+    def finish(fig: Any, axes: Any, path: str | os.PathLike[str]) -> None:
         handles, labels = axes[0, 0].get_legend_handles_labels()
         fig.legend(handles, labels, loc="center right", fontsize=8, frameon=False)
         fig.tight_layout(rect=(0, 0, 1 - 1.3 / width, 1))
@@ -866,7 +873,7 @@ def _plots(rows, series, paths) -> None:
 class _quiet:
     """Silence numpy's "mean of empty slice" warnings (all-NaN steps after an early end)."""
 
-    def __enter__(self):
+    def __enter__(self) -> _quiet:
         import warnings
 
         self._catch = warnings.catch_warnings()
@@ -874,8 +881,8 @@ class _quiet:
         warnings.simplefilter("ignore", RuntimeWarning)
         return self
 
-    def __exit__(self, *exc):
-        return self._catch.__exit__(*exc)
+    def __exit__(self, *exc: Any) -> None:
+        self._catch.__exit__(*exc)
 
 
 # -- command line -----------------------------------------------------------------------------------

@@ -3,10 +3,10 @@
 from __future__ import annotations
 
 import numpy as np
-from numpy.typing import DTypeLike, NDArray
+from numpy.typing import ArrayLike, DTypeLike, NDArray
 
 
-def frozen(array, dtype: DTypeLike) -> NDArray:
+def frozen(array: ArrayLike, dtype: DTypeLike) -> NDArray:
     """A read-only copy of ``array`` as ``dtype`` (the loaders' results cannot be changed in place)."""
     array = np.array(array, dtype=dtype, copy=True)
     array.setflags(write=False)

@@ -82,6 +82,7 @@ Example::
 
 from __future__ import annotations
 
+import os
 import sys
 import warnings
 from collections.abc import Sequence
@@ -89,7 +90,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, DTypeLike, NDArray
 
 from seif_gym.datasets._arrays import frozen
 from seif_gym.slam.models import wrap_angle
@@ -202,7 +203,7 @@ class GroundTruth:
         """``(x, y, theta)`` per row, shape (g, 3)."""
         return np.column_stack([self.x, self.y, self.theta])
 
-    def interpolate(self, t) -> FloatArray:
+    def interpolate(self, t: ArrayLike) -> FloatArray:
         """Pose(s) at time(s) ``t`` (s), linear in x, y and in the unwrapped heading.
 
         Returns shape (3,) for a scalar ``t``, (k, 3) for an array; heading
@@ -243,7 +244,7 @@ class Landmarks:
         """``(x, y)`` per landmark, shape (L, 2), in the order of :attr:`subject`."""
         return np.column_stack([self.x, self.y])
 
-    def index(self, subject) -> IntArray:
+    def index(self, subject: ArrayLike) -> IntArray:
         """Row of each subject in these arrays (ValueError for a subject not surveyed)."""
         subject = np.asarray(subject, dtype=np.int64)
         rows = np.searchsorted(self.subject, subject)
@@ -299,14 +300,14 @@ class MrclamLog:
 # ---------------------------------------------------------------------------
 # Parsing
 # ---------------------------------------------------------------------------
-def _resolve_folder(path) -> Path:
+def _resolve_folder(path: str | os.PathLike[str]) -> Path:
     folder = Path(path)
     if not folder.is_dir():
         raise FileNotFoundError(f"MRCLAM dataset folder not found: {folder} (give a folder like MRCLAM_Dataset6)")
     return folder
 
 
-def _read_table(file: Path, columns: tuple[int, ...], dtype=np.float64) -> NDArray:
+def _read_table(file: Path, columns: tuple[int, ...], dtype: DTypeLike = np.float64) -> NDArray:
     """Whitespace-separated numbers of ``file``, ``#`` comments skipped; shape (rows, ncols).
 
     ``columns`` lists the accepted column counts (e.g. ``(3, 5)``).
@@ -362,7 +363,7 @@ def _read_shared(folder: Path) -> tuple[IntArray, Landmarks]:
     return frozen(barcodes, np.int64), landmarks
 
 
-def _check_robot(robot) -> int:
+def _check_robot(robot: int) -> int:
     if isinstance(robot, bool) or not isinstance(robot, (int, np.integer)) or int(robot) not in ROBOTS:
         raise ValueError(f"robot must be an integer in 1..5, got {robot!r}")
     return int(robot)
@@ -404,7 +405,7 @@ def _load_robot(folder: Path, robot: int, barcodes: IntArray, landmarks: Landmar
 # ---------------------------------------------------------------------------
 # Public API
 # ---------------------------------------------------------------------------
-def load(path, robot: int) -> MrclamLog:
+def load(path: str | os.PathLike[str], robot: int) -> MrclamLog:
     """Load one robot's log from an MRCLAM dataset folder (original text format).
 
     Parameters
@@ -436,7 +437,7 @@ def load(path, robot: int) -> MrclamLog:
     return _load_robot(folder, robot, barcodes, landmarks)
 
 
-def load_all(path) -> dict[int, MrclamLog]:
+def load_all(path: str | os.PathLike[str]) -> dict[int, MrclamLog]:
     """Load the logs of the five robots of an MRCLAM dataset folder: ``{1: log1, ..., 5: log5}``.
 
     The shared files are read once; see :func:`load` for parameters and errors.

@@ -42,6 +42,7 @@ import argparse
 import itertools
 import json
 import math
+import os
 import sys
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
@@ -49,7 +50,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
 from seif_gym.datasets import mrclam
 from seif_gym.datasets._arrays import frozen
@@ -69,7 +70,7 @@ from seif_gym.slam.noise_models import (
     PerSecondVelocityMotionModel,
     RangeDependentSensor,
 )
-from seif_gym.type_aliases import FloatArray
+from seif_gym.type_aliases import FloatArray, IntArray
 
 __all__ = [
     "FORMAT",
@@ -175,7 +176,9 @@ class Calibration:
     world: dict[str, Any] = field(default_factory=dict)
 
     # -- models -----------------------------------------------------------------
-    def motion_model(self, noise_floor: float = 1e-9, corrected: bool = True):
+    def motion_model(
+        self, noise_floor: float = 1e-9, corrected: bool = True
+    ) -> CorrectedMotionModel | PerSecondVelocityMotionModel:
         """The calibrated motion model: per-second noise behind the command correction.
 
         With ``corrected=False``, the bare
@@ -274,14 +277,14 @@ class Calibration:
         except KeyError as error:
             raise ValueError(f"calibration data lacks the field {error.args[0]!r}") from error
 
-    def save(self, path) -> Path:
+    def save(self, path: str | os.PathLike[str]) -> Path:
         """Write the calibration as JSON to ``path``; returns the path."""
         path = Path(path)
         path.write_text(json.dumps(self.to_dict(), indent=2) + "\n")
         return path
 
     @classmethod
-    def load(cls, path) -> Calibration:
+    def load(cls, path: str | os.PathLike[str]) -> Calibration:
         """Read a file written by :meth:`save`."""
         path = Path(path)
         if not path.is_file():
@@ -289,8 +292,8 @@ class Calibration:
         return cls.from_dict(json.loads(path.read_text()))
 
 
-def _triple(values, name: str) -> tuple[float, float, float]:
-    values = [float(v) for v in values]
+def _triple(values: ArrayLike, name: str) -> tuple[float, float, float]:
+    values = [float(v) for v in np.asarray(values, dtype=np.float64).ravel()]
     if len(values) != 3:
         raise ValueError(f"{name} must have 3 entries, got {len(values)}")
     return values[0], values[1], values[2]
@@ -351,7 +354,7 @@ def _windows(track: _Track, length: float, stride: float | None = None) -> tuple
     return starts[ok], starts[ok] + n
 
 
-def _window_sums(values: FloatArray, starts, ends) -> FloatArray:
+def _window_sums(values: FloatArray, starts: IntArray, ends: IntArray) -> FloatArray:
     cumulative = np.concatenate([[0.0], np.cumsum(values)])
     return cumulative[ends] - cumulative[starts]
 
@@ -359,22 +362,33 @@ def _window_sums(values: FloatArray, starts, ends) -> FloatArray:
 # ---------------------------------------------------------------------------
 # Motion: latency, heading offsets, correction, noise
 # ---------------------------------------------------------------------------
-def _correction_design(track: _Track, latency: float, offset: float, starts, ends, fit_offsets: bool):
+def _correction_design(
+    track: _Track, latency: float, offset: float, starts: IntArray, ends: IntArray, fit_offsets: bool
+) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
     """Per window: the ground-truth distance and turn, and the regressors of the correction."""
     v, w = track.commands(latency)
     along, _ = track.steps_along(offset)
     distance = _window_sums(along, starts, ends)
     turn = track.theta[ends] - track.theta[starts]
     duration = (ends - starts) * STEP
-    speed_columns = [_window_sums(v * STEP, starts, ends), -_window_sums(v * np.abs(w) * STEP, starts, ends)]
-    turn_columns = [_window_sums(w * STEP, starts, ends)]
+    speed_columns: list[NDArray[np.floating]] = [
+        _window_sums(v * STEP, starts, ends),
+        -_window_sums(v * np.abs(w) * STEP, starts, ends),
+    ]
+    turn_columns: list[NDArray[np.floating]] = [_window_sums(w * STEP, starts, ends)]
     if fit_offsets:
         speed_columns.append(duration)
         turn_columns.append(duration)
     return distance, turn, np.column_stack(speed_columns), np.column_stack(turn_columns)
 
 
-def _fit_correction(tracks, latency, offsets, windows, fit_offsets) -> tuple[CommandCorrection, float, float]:
+def _fit_correction(
+    tracks: Sequence[_Track],
+    latency: float,
+    offsets: Mapping[int, float],
+    windows: Mapping[int, tuple[IntArray, IntArray]],
+    fit_offsets: bool,
+) -> tuple[CommandCorrection, float, float]:
     """Huber regressions of distance and turn per window; returns the correction and the two residual scales."""
     parts = [_correction_design(t, latency, offsets[t.robot], windows[t.robot][0], windows[t.robot][1], fit_offsets)
              for t in tracks]  # fmt: skip
@@ -396,7 +410,7 @@ def _fit_correction(tracks, latency, offsets, windows, fit_offsets) -> tuple[Com
     return correction, speed_scale, turn_scale
 
 
-def _heading_offset(track: _Track, latency: float, starts, ends) -> float:
+def _heading_offset(track: _Track, latency: float, starts: IntArray, ends: IntArray) -> float:
     """Robust mean angle between the ground-truth displacement and the Vicon heading, over moving windows."""
     along, across = track.steps_along(0.0)
     forward, lateral = _window_sums(along, starts, ends), _window_sums(across, starts, ends)
@@ -419,7 +433,9 @@ def _refine_minimum(grid: FloatArray, values: FloatArray) -> float:
     return float(grid[i])
 
 
-def _motion_residuals(track: _Track, correction: CommandCorrection, latency: float, offset: float, starts, ends):
+def _motion_residuals(
+    track: _Track, correction: CommandCorrection, latency: float, offset: float, starts: IntArray, ends: IntArray
+) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
     """Forward, lateral and heading errors of dead reckoning per window, and the noise features."""
     v, w = track.commands(latency)
     corrected = correction.apply(np.column_stack([v, w]))
@@ -438,7 +454,9 @@ def _motion_residuals(track: _Track, correction: CommandCorrection, latency: flo
 # ---------------------------------------------------------------------------
 # Sensor
 # ---------------------------------------------------------------------------
-def _sensor_residuals(log: mrclam.MrclamLog, latency: float, heading_offset: float, max_gap: float = 0.25):
+def _sensor_residuals(
+    log: mrclam.MrclamLog, latency: float, heading_offset: float, max_gap: float = 0.25
+) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, IntArray]:
     """Range and bearing residuals of the landmark readings (true pose at stamp - latency), and their ranges."""
     m, gt = log.measurements, log.ground_truth
     t = m.time - latency
@@ -482,7 +500,7 @@ def _range_noise(errors: FloatArray, ranges: FloatArray) -> tuple[float, tuple[f
         (middle, 0.5 * middle * r_min, 2.0 * middle * r_max),
     ]
 
-    def log_sigma(theta):
+    def log_sigma(theta: FloatArray) -> FloatArray:
         a, lo, hi = np.exp(theta)
         return np.log(np.clip(a * ranges, min(lo, hi), max(lo, hi)))
 
@@ -496,7 +514,14 @@ def _range_noise(errors: FloatArray, ranges: FloatArray) -> tuple[float, tuple[f
     return float(a), (float(lo), float(max(hi, lo)))
 
 
-def _error_correlations(times, subjects, errors, scale, lags=CORRELATION_LAGS, tolerance=0.1) -> dict[str, float]:
+def _error_correlations(
+    times: FloatArray,
+    subjects: IntArray,
+    errors: FloatArray,
+    scale: float | FloatArray,
+    lags: Sequence[float] = CORRELATION_LAGS,
+    tolerance: float = 0.1,
+) -> dict[str, float]:
     """Robust correlation of two errors of the same landmark ``lag`` seconds apart (within ``tolerance``)."""
     out: dict[str, float] = {}
     order = np.lexsort((times, subjects))
@@ -521,13 +546,13 @@ def _error_correlations(times, subjects, errors, scale, lags=CORRELATION_LAGS, t
 # calibrate
 # ---------------------------------------------------------------------------
 def calibrate(
-    logs,
+    logs: Sequence[mrclam.MrclamLog] | Mapping[int, mrclam.MrclamLog],
     *,
     horizon: float = 20.0,
     fit_offsets: bool = False,
     latency_grid: Sequence[float] | None = None,
     sensor_latency_grid: Sequence[float] | None = None,
-    progress=None,
+    progress: Any = None,
 ) -> Calibration:
     """Estimate a :class:`Calibration` from MRCLAM logs and their ground truth.
 
@@ -900,7 +925,7 @@ def simulate_logs(
     return logs
 
 
-def write_dataset(folder, logs: Mapping[int, mrclam.MrclamLog]) -> Path:
+def write_dataset(folder: str | os.PathLike[str], logs: Mapping[int, mrclam.MrclamLog]) -> Path:
     """Write ``logs`` (one dataset) in the MRCLAM text format to ``folder``; returns the folder.
 
     ``Barcodes.dat`` and ``Landmark_Groundtruth.dat`` come from the first log;

@@ -39,12 +39,13 @@ from __future__ import annotations
 
 import argparse
 import math
+import os
 import sys
 import time as clock
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import scipy.stats
@@ -56,6 +57,10 @@ from seif_gym.progress import Progress
 from seif_gym.slam.models import wrap_angle
 from seif_gym.slam.noise_models import RangeDependentSensor
 from seif_gym.type_aliases import FloatArray, IntArray
+
+if TYPE_CHECKING:
+    from seif_gym.slam.association import Associator
+    from seif_gym.slam.base import SlamFilter
 
 __all__ = ["MrclamRun", "RunnerConfig", "chi2_band", "main", "plot_runs", "run_robot", "save_runs", "score", "table"]
 
@@ -151,7 +156,7 @@ def _sensor(calibration: Calibration, config: RunnerConfig) -> RangeDependentSen
                                 calibration.sigma_bearing * root, max_range=config.max_range)  # fmt: skip
 
 
-def _make_filter(filter_name: str, calibration: Calibration, config: RunnerConfig, pose: FloatArray):
+def _make_filter(filter_name: str, calibration: Calibration, config: RunnerConfig, pose: FloatArray) -> SlamFilter:
     from seif_gym.slam import FILTERS
 
     if filter_name not in FILTER_NAMES:
@@ -335,7 +340,7 @@ def run_robot(
     return result
 
 
-def _subjects_of(filt, log: mrclam.MrclamLog, associator, ids: IntArray) -> IntArray:
+def _subjects_of(filt: SlamFilter, log: mrclam.MrclamLog, associator: Associator | None, ids: IntArray) -> IntArray:
     """Survey subject of each associator landmark: the nearest surveyed landmark after a rigid alignment."""
     survey = log.landmarks.positions
     estimate = np.asarray(filt.landmarks)
@@ -416,7 +421,7 @@ def score(run: MrclamRun, landmarks: mrclam.Landmarks) -> dict[str, float]:
 # ---------------------------------------------------------------------------
 # Files
 # ---------------------------------------------------------------------------
-def save_runs(runs: Sequence[MrclamRun], path) -> Path:
+def save_runs(runs: Sequence[MrclamRun], path: str | os.PathLike[str]) -> Path:
     """Write runs to one ``.npz``: per run ``r{robot}_{name}`` arrays (``time``, ``pose``, ...).
 
     With one run the arrays are also stored under their plain names
@@ -439,7 +444,9 @@ def save_runs(runs: Sequence[MrclamRun], path) -> Path:
     return path
 
 
-def plot_runs(runs: Sequence[MrclamRun], landmarks: mrclam.Landmarks, path, title: str | None = None) -> Path:
+def plot_runs(
+    runs: Sequence[MrclamRun], landmarks: mrclam.Landmarks, path: str | os.PathLike[str], title: str | None = None
+) -> Path:
     """Trajectories against Vicon and maps against the survey, one panel per robot (PNG)."""
     import matplotlib
 
@@ -522,7 +529,7 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def _robots(text: str, folder=None) -> list[int]:
+def _robots(text: str, folder: str | os.PathLike[str] | None = None) -> list[int]:
     """The robots of ``--robot``: one, or ``all`` the robots whose odometry file ``folder`` holds."""
     if text == "all":
         if folder is None:

@@ -27,7 +27,7 @@ from collections.abc import Callable
 import numpy as np
 import scipy.optimize
 import scipy.stats
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
 from seif_gym.type_aliases import FloatArray
 
@@ -56,7 +56,7 @@ REJECT_AT = 3.0
 _MAD_TO_SIGMA = 1.0 / scipy.stats.norm.ppf(0.75)
 
 
-def _finite_1d(values, name: str) -> FloatArray:
+def _finite_1d(values: ArrayLike, name: str) -> FloatArray:
     if isinstance(values, (str, bytes)) or values is None:
         raise TypeError(f"{name} must be an array of numbers, got {type(values).__name__}")
     array = np.asarray(values, dtype=np.float64)
@@ -69,13 +69,13 @@ def _finite_1d(values, name: str) -> FloatArray:
     return array
 
 
-def mad_scale(residuals) -> float:
+def mad_scale(residuals: ArrayLike) -> float:
     """``1.4826 median |e - median(e)|``: the standard deviation of a Gaussian, robustly."""
     e = _finite_1d(residuals, "residuals")
     return float(_MAD_TO_SIGMA * np.median(np.abs(e - np.median(e))))
 
 
-def huber_location(values, k: float = HUBER_K, tol: float = 1e-10, max_iter: int = 100) -> float:
+def huber_location(values: ArrayLike, k: float = HUBER_K, tol: float = 1e-10, max_iter: int = 100) -> float:
     """Huber's M-estimate of location of ``values`` (scale fixed at their MAD).
 
     Notes
@@ -100,7 +100,12 @@ def huber_location(values, k: float = HUBER_K, tol: float = 1e-10, max_iter: int
 
 
 def huber_regression(
-    design, response, k: float = HUBER_K, weights=None, tol: float = 1e-10, max_iter: int = 200
+    design: ArrayLike,
+    response: ArrayLike,
+    k: float = HUBER_K,
+    weights: ArrayLike | None = None,
+    tol: float = 1e-10,
+    max_iter: int = 200,
 ) -> tuple[FloatArray, float]:
     """Linear regression ``y ~ X b`` with Huber's loss: ``(b, scale)``.
 
@@ -189,13 +194,20 @@ def _scale_objective(residuals: FloatArray, log_sigma: FloatArray, k: float, kap
     return float(np.sum(rho + kappa * log_sigma)), kappa - chi
 
 
-def scale_objective(residuals, log_sigma, k: float = SCALE_K) -> float:
+def scale_objective(residuals: ArrayLike, log_sigma: ArrayLike, k: float = SCALE_K) -> float:
     """Huber's proposal-2 objective ``L_1`` of :func:`fit_scale_model` at given ``log sigma_i`` (to compare fits)."""
     e = _finite_1d(residuals, "residuals")
     return _scale_objective(e, np.asarray(log_sigma, dtype=np.float64), k, scale_consistency(k), None)[0]
 
 
-def _refit(residuals: FloatArray, log_sigma, minimise, theta, k: float, reject: float | None) -> FloatArray:
+def _refit(
+    residuals: FloatArray,
+    log_sigma: Callable[[FloatArray], FloatArray],
+    minimise: Callable[..., FloatArray],
+    theta: FloatArray,
+    k: float,
+    reject: float | None,
+) -> FloatArray:
     """Huber's proposal 2 from ``theta``, then (``reject``) the trimmed Gaussian fit until the inliers settle."""
     theta = minimise(theta, None, scale_consistency(k))
     if reject is None:
@@ -212,9 +224,9 @@ def _refit(residuals: FloatArray, log_sigma, minimise, theta, k: float, reject: 
 
 
 def fit_scale_model(
-    residuals,
+    residuals: ArrayLike,
     log_sigma: Callable[[FloatArray], FloatArray],
-    theta0,
+    theta0: ArrayLike,
     k: float = SCALE_K,
     reject: float | None = REJECT_AT,
 ) -> FloatArray:
@@ -262,8 +274,8 @@ def fit_scale_model(
     """
     e = _finite_1d(residuals, "residuals")
 
-    def minimise(theta, inliers, kappa):
-        def objective(t):
+    def minimise(theta: FloatArray, inliers: NDArray[np.bool_] | None, kappa: float) -> FloatArray:
+        def objective(t: FloatArray) -> float:
             return _scale_objective(e, np.asarray(log_sigma(t), dtype=np.float64), k, kappa, inliers)[0]
 
         result = scipy.optimize.minimize(objective, np.asarray(theta, dtype=np.float64), method="Nelder-Mead",
@@ -280,7 +292,9 @@ def fit_scale_model(
     )
 
 
-def fit_variance_regression(residuals, features, k: float = SCALE_K, reject: float | None = REJECT_AT) -> FloatArray:
+def fit_variance_regression(
+    residuals: ArrayLike, features: ArrayLike, k: float = SCALE_K, reject: float | None = REJECT_AT
+) -> FloatArray:
     r"""Non-negative coefficients ``c`` of a variance model ``sigma_i^2 = x_i . c``, fitted robustly.
 
     Parameters
@@ -317,11 +331,11 @@ def fit_variance_regression(residuals, features, k: float = SCALE_K, reject: flo
     level = max(mad_scale(e) ** 2, 1e-300)
     tiny = level * 1e-12
 
-    def log_sigma(c):
+    def log_sigma(c: FloatArray) -> FloatArray:
         return 0.5 * np.log(np.maximum(Xs @ c, 1e-300))
 
-    def minimise(c, inliers, kappa):
-        def objective(c):
+    def minimise(c: FloatArray, inliers: NDArray[np.bool_] | None, kappa: float) -> FloatArray:
+        def objective(c: FloatArray) -> tuple[float, FloatArray]:
             variance = np.maximum(Xs @ c, 1e-300)
             value, slope = _scale_objective(e, 0.5 * np.log(variance), k, kappa, inliers)
             return value, Xs.T @ (slope * 0.5 / variance)
@@ -336,7 +350,7 @@ def fit_variance_regression(residuals, features, k: float = SCALE_K, reject: flo
     return np.where(coefficients <= 2.0 * tiny, 0.0, coefficients) / column_scale
 
 
-def robust_correlation(a, b) -> float:
+def robust_correlation(a: ArrayLike, b: ArrayLike) -> float:
     """Correlation of two paired samples from robust standardisation (MAD, median), clipped to [-1, 1].
 
     Notes

@@ -42,12 +42,14 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import math
+import os
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
 from seif_gym.datasets._arrays import frozen
 from seif_gym.progress import Progress
@@ -57,6 +59,8 @@ from seif_gym.type_aliases import FloatArray, IntArray
 if TYPE_CHECKING:
     from seif_gym.slam.association import AssociationStats, Associator
     from seif_gym.slam.base import SlamFilter
+    from seif_gym.slam.car_model import AckermannLaserModel
+    from seif_gym.slam.models import RangeBearingSensor
 
 
 #: File name of the compact NumPy copy inside the data directory.
@@ -179,7 +183,7 @@ class VictoriaPark:
     path: Path
 
 
-def _resolve(path) -> Path:
+def _resolve(path: str | os.PathLike[str]) -> Path:
     path = Path(path)
     if path.is_dir():
         path = path / FILE_NAME
@@ -188,7 +192,7 @@ def _resolve(path) -> Path:
     return path
 
 
-def load(path, *, verify: bool = False) -> VictoriaPark:
+def load(path: str | os.PathLike[str], *, verify: bool = False) -> VictoriaPark:
     """Load the Victoria Park copy at ``path`` (its directory, or the ``.npz`` itself).
 
     Parameters
@@ -233,7 +237,7 @@ def load(path, *, verify: bool = False) -> VictoriaPark:
         raise ValueError("det_scan must be sorted scan indices in [0, number of scans)")
     start = np.searchsorted(scan_index, np.arange(n_scan + 1))
 
-    def clock(ms):
+    def clock(ms: ArrayLike) -> tuple[IntArray, FloatArray]:
         return frozen(ms, np.int64), frozen(np.asarray(ms, dtype=np.float64) / 1000.0, np.float64)
 
     odo_ms, odo_s = clock(d["odo_time_ms"])
@@ -451,7 +455,7 @@ class RunResult:
         """Wall time per odometry step (the whole run's time divided by the odometry steps)."""
         return self.total_seconds / max(self.odometry_steps, 1)
 
-    def save(self, path) -> None:
+    def save(self, path: str | os.PathLike[str]) -> None:
         extra: dict[str, Any] = {}
         if self.error is not None:
             extra = {
@@ -476,7 +480,7 @@ class RunResult:
         )
 
 
-def make_models(config: RunConfig):
+def make_models(config: RunConfig) -> tuple[AckermannLaserModel, RangeBearingSensor]:
     """The car model and the range-bearing sensor of ``config``."""
     from seif_gym.slam.car_model import AckermannLaserModel
     from seif_gym.slam.models import RangeBearingSensor
@@ -589,7 +593,15 @@ def _setup(data: VictoriaPark, filter_name: str, config: RunConfig) -> tuple[Sla
     return filt, associator
 
 
-def _process(data: VictoriaPark, filt, associator, n_odo: int, n_scan: int, config: RunConfig, bar):
+def _process(
+    data: VictoriaPark,
+    filt: SlamFilter,
+    associator: Associator | None,
+    n_odo: int,
+    n_scan: int,
+    config: RunConfig,
+    bar: Progress | None,
+) -> tuple[FloatArray, FloatArray, FloatArray, IntArray]:
     """The event loop of :func:`run`; returns ``(times, poses, scan_elapsed, scan_landmarks)``."""
     import time as clock
 
@@ -622,6 +634,7 @@ def _process(data: VictoriaPark, filt, associator, n_odo: int, n_scan: int, conf
                 ranges = scans.range[rows][keep]
                 bearings = scans.bearing[rows][keep]
                 diameters = scans.diameter[rows][keep] if use_signatures else None
+                assert associator is not None  # the scans are associated (known ids are not in the data)
                 associator.update(filt, ranges, bearings, diameters)
             scan_elapsed[k] = clock.perf_counter() - started
             scan_landmarks[k] = filt.num_landmarks
@@ -665,7 +678,7 @@ def step_times(result: RunResult, window: int = 250) -> tuple[FloatArray, FloatA
     return scan_t - result.time[0], ms_per_step, result.scan_landmarks[ends].astype(np.float64)
 
 
-def _saved_run(path):
+def _saved_run(path: str | os.PathLike[str]) -> Any:
     """The fields of a saved run that :func:`step_times` and :func:`plot` need, from its ``.npz``."""
     from types import SimpleNamespace
 
@@ -682,7 +695,13 @@ def _saved_run(path):
         )
 
 
-def plot(result: RunResult, data: VictoriaPark, path, title: str | None = None, compare=()) -> None:
+def plot(
+    result: RunResult,
+    data: VictoriaPark,
+    path: str | os.PathLike[str],
+    title: str | None = None,
+    compare: Sequence[str | os.PathLike[str]] = (),
+) -> None:
     """Save the aligned trajectory and map over the GPS, and the time per step, to ``path``.
 
     ``compare``: paths of other runs' ``.npz`` whose time per step is drawn too.
@@ -768,7 +787,7 @@ def summary(result: RunResult) -> str:
     return "\n".join(lines)
 
 
-def main(argv=None) -> int:
+def main(argv: Sequence[str] | None = None) -> int:
     """``python -m seif_gym.datasets.victoria_park --data DIR --filter seif --out OUT.npz [--steps N]``."""
     import argparse
     import sys

@@ -40,7 +40,6 @@ import json
 import sys
 import time
 from collections.abc import Mapping, Sequence
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -50,6 +49,7 @@ import gymnasium as gym
 import seif_gym
 from agents import BASELINES
 from agents.evaluate import evaluate_agents, write_outputs
+from agents.parallel import Executor
 
 __all__ = [
     "HELD_OUT_SEED",
@@ -207,10 +207,6 @@ def benchmark_variant(env_id: str, agents: Sequence[str], episodes: int, seed: i
     return table
 
 
-def _variant_job(args: tuple) -> list[dict[str, Any]]:
-    return benchmark_variant(*args)
-
-
 def run_benchmark(variants: Sequence[str], agents: Sequence[str], episodes: int, seed: int, out: str | Path,
                   jobs: int = 1, verbose: bool = False) -> list[dict[str, Any]]:  # fmt: skip
     """Every agent on every variant (``jobs`` processes, one variant each); writes the leaderboard files."""
@@ -224,11 +220,7 @@ def run_benchmark(variants: Sequence[str], agents: Sequence[str], episodes: int,
     folder = Path(out)
     folder.mkdir(parents=True, exist_ok=True)
     work = [(env_id, list(agents), int(episodes), int(seed), folder, verbose) for env_id in variants]
-    if jobs > 1 and len(work) > 1:
-        with ProcessPoolExecutor(min(int(jobs), len(work))) as pool:
-            tables = list(pool.map(_variant_job, work))
-    else:
-        tables = [_variant_job(job) for job in work]
+    tables = Executor(workers=int(jobs)).map(benchmark_variant, work)  # one variant per task
     rows = [row for table in tables for row in table]
     with (folder / "leaderboard.csv").open("w", newline="") as handle:
         writer = csv.DictWriter(handle, fieldnames=list(LEADERBOARD_COLUMNS))

@@ -64,3 +64,12 @@ def test_run_benchmark_rejects_bad_arguments(tmp_path):
         benchmark.run_benchmark(["SeifExplore-v1"], ["nobody"], episodes=1, seed=0, out=tmp_path)
     with pytest.raises(ValueError, match="episodes"):
         benchmark.run_benchmark(["SeifExplore-v1"], ["random"], episodes=0, seed=0, out=tmp_path)
+
+
+def test_run_benchmark_on_local_processes_equals_the_serial_run(tmp_path):
+    """``--jobs`` runs the variants through agents.parallel.Executor: the same rows as one process."""
+    arguments = (["SeifExplore-v1", "SeifExploreLoop-v1"], ["frontier", "random"])
+    serial = benchmark.run_benchmark(*arguments, episodes=2, seed=11, out=tmp_path / "serial")
+    parallel = benchmark.run_benchmark(*arguments, episodes=2, seed=11, out=tmp_path / "jobs", jobs=2)
+    assert parallel == serial and len(serial) == 4
+    assert (tmp_path / "jobs" / "leaderboard.md").read_text() == (tmp_path / "serial" / "leaderboard.md").read_text()

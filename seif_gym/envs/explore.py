@@ -523,8 +523,7 @@ class SeifExploreEnv(gym.Env):
         return observation, info
 
     def step(self, action: ArrayLike) -> tuple[dict[str, np.ndarray], float, bool, bool, dict[str, Any]]:
-        if self.world is None or self.filter is None:
-            raise RuntimeError("call reset() before step()")
+        world, filt = self._require_state("step")
         action = np.asarray(action, dtype=np.float64)
         if action.shape != (2,):
             raise ValueError(f"action must have shape (2,), got {action.shape}")
@@ -532,17 +531,17 @@ class SeifExploreEnv(gym.Env):
             raise ValueError(f"action must be finite, got {action}")
         control = np.clip(action, -1.0, 1.0) * self._action_scale
         dt = self.robot_config.dt
-        executed, wall = self.world.step(control, dt, self._motion_rng)
-        measurement = self.world.measure(self._sensor_rng)
+        executed, wall = world.step(control, dt, self._motion_rng)
+        measurement = world.measure(self._sensor_rng)
         started = self._clock()
         # the simulator's data are valid by construction: skip the filter's input checks
-        self.filter.predict_trusted(executed, dt)
+        filt.predict_trusted(executed, dt)
         self._filter_update(*measurement)
         step_time = self._clock() - started
-        estimate = self.filter.pose
+        estimate = filt.pose
         self.encoder.sweep(estimate)
         self._elapsed_steps += 1
-        self.trajectory.append(self.world.pose.copy())
+        self.trajectory.append(world.pose.copy())
         self.estimated_trajectory.append(estimate.copy())
 
         map_error = self.map_error()
@@ -554,9 +553,9 @@ class SeifExploreEnv(gym.Env):
             self._information = information
         self._map_error = map_error
         reward = gain - (self.reward_config.wall_penalty if wall else 0.0)
-        pose_error = float(np.hypot(*(self.world.pose[:2] - estimate[:2])))
+        pose_error = float(np.hypot(*(world.pose[:2] - estimate[:2])))
         diverged = pose_error > self.reward_config.divergence_threshold
-        observation = self.encoder.encode(self.filter)
+        observation = self.encoder.encode(filt)
         info = self._info(control, executed, measurement, step_time, wall=wall, diverged=diverged)
         if self.render_mode == "human":
             self.render()

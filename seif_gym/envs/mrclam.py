@@ -39,10 +39,13 @@ errors make it overconfident.
 
 from __future__ import annotations
 
+import functools
 import json
 import math
 from pathlib import Path
 from typing import Any
+
+from seif_gym.datasets.mrclam_calibration import Calibration
 
 __all__ = ["MRCLAM_CALIBRATION", "MRCLAM_ORIGIN", "mrclam_kwargs"]
 
@@ -52,7 +55,9 @@ MRCLAM_CALIBRATION = Path(__file__).resolve().parents[1] / "datasets" / "mrclam6
 WALL_MARGIN = 0.25
 
 
+@functools.cache
 def _world(calibration: Path) -> tuple[dict[str, Any], dict[str, Any]]:
+    """The calibration file's data and its world description, read once per file (callers only read them)."""
     data = json.loads(Path(calibration).read_text())
     world = data.get("world") or {}
     missing = [
@@ -102,8 +107,7 @@ def mrclam_kwargs(calibration: str | Path | None = None) -> dict[str, Any]:
     """
     data, world = _world(Path(calibration) if calibration is not None else MRCLAM_CALIBRATION)
     x0, y0, width, height = _origin(world)
-    motion, sensor = data["motion_noise"], data["sensor_noise"]
-    slope, (low, high) = float(sensor["range_slope"]), sensor["range_bounds"]
+    noise = Calibration.from_dict(data).env_kwargs()  # the calibrated models, as for any SeifExplore env
     return {
         "arena_size": float(math.ceil(max(width, height))),
         "arena_extent": (round(width, 3), round(height, 3)),
@@ -115,12 +119,9 @@ def mrclam_kwargs(calibration: str | Path | None = None) -> dict[str, Any]:
         "dt": 0.25,
         "sensor_range": round(float(world["max_range"]), 3),
         "fov": round(float(world["fov"]), 4),
-        "motion_model": "per_second",
-        "motion_noise": tuple(float(v) for key in ("forward", "turn", "lateral") for v in motion[key]),
-        "range_noise": (slope, float(low), float(high)),
+        **noise,
         "range_error_time": None if (tau := range_error_time(data)) is None else round(tau, 2),
-        "sigma_range": float(high),
-        "sigma_bearing": float(sensor["sigma_bearing"]),
+        "sigma_range": noise["range_noise"][2],  # unused with range_noise; the largest, as the sensor reports
     }
 
 

@@ -10,7 +10,8 @@ vector step). Measured for each N of ``--sizes``:
 
 * ``native``: ``gym.make_vec(env, num_envs=N)``, the native vector env
   (``SeifExploreVectorEnv``: the worlds, filters, observations and rewards of
-  all N envs in compiled calls, parallel over the sub-envs);
+  all N envs in compiled calls, one thread by default), and for N >= 32 also
+  with ``num_threads`` = numba's thread count (the cores);
 * ``sync`` / ``async``: Gymnasium's ``SyncVectorEnv`` / ``AsyncVectorEnv``
   over the single env (``async`` only for N <= 16: one process per sub-env);
 
@@ -67,8 +68,13 @@ def main(argv: list[str] | None = None) -> int:
         "CartPole-v1 SyncVectorEnv (64)": lambda: gym.make_vec("CartPole-v1", 64, vectorization_mode="sync"),
         "CartPole-v1 native (64)": lambda: gym.make_vec("CartPole-v1", 64, vectorization_mode="vector_entry_point"),
     }
+    threads = numba.config.NUMBA_NUM_THREADS
     for n in sizes:
         makers[f"{args.env} native ({n})"] = lambda n=n: gym.make_vec(args.env, n)
+        if threads > 1 and n >= 32:
+            makers[f"{args.env} native ({n}, {threads} threads)"] = lambda n=n: gym.make_vec(
+                args.env, n, num_threads=threads
+            )
         makers[f"{args.env} sync ({n})"] = lambda n=n: gym.make_vec(args.env, n, vectorization_mode="sync")
         if n <= 16:
             makers[f"{args.env} async ({n})"] = lambda n=n: gym.make_vec(args.env, n, vectorization_mode="async")
@@ -93,7 +99,7 @@ def main(argv: list[str] | None = None) -> int:
     print()
     for n in sizes:
         native, sync = best[f"{args.env} native ({n})"], best[f"{args.env} sync ({n})"]
-        print(f"N = {n}: native {native / sync:.2f}x the SyncVectorEnv")
+        print(f"N = {n}: native (1 thread) {native / sync:.2f}x the SyncVectorEnv")
     return 0
 
 

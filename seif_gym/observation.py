@@ -542,6 +542,55 @@ class ObservationDecoder:
 
 
 @njit(cache=True)
+def encode_env(e: int, coverage: UInt8Array, resolution: float, half_arena: float, max_range: float, half_fov: float,
+               map_size: int, map_extent: float, nearest_landmarks: int, diagonal: float, std_scale: float,
+               robot_info: FloatArray, robot_links: FloatArray, landmark_info: FloatArray, neighbour_index: IntArray,
+               neighbour_info: FloatArray, neighbour_count: IntArray, information_vector: FloatArray,
+               mean: FloatArray, block_position: IntArray, active: IntArray, counters: IntArray,
+               pose_out: Float32Array, landmarks_out: Float32Array, mask_out: Float32Array, map_out: UInt8Array,
+               pose_covariance_out: FloatArray) -> None:  # fmt: skip
+    """:meth:`BeliefEncoder.sweep` then :meth:`BeliefEncoder.encode` of SEIF ``e`` of a batch (``BatchedSEIF`` arrays).
+
+    Writes its observation into row ``e`` of ``pose_out`` (N, 7), ``landmarks_out`` (N, 4K),
+    ``mask_out`` (N, K), ``map_out`` (N, 3, H, W) and the Markov-blanket pose covariance
+    it used into ``pose_covariance_out[e]`` (3, 3), with the same kernels and operations
+    as the single encoder.
+    """
+    x = mean[e, 0]
+    y = mean[e, 1]
+    theta = mean[e, 2]
+    _sweep(coverage[e], resolution, half_arena, x, y, theta, max_range, half_fov)
+    n = counters[e, 0]
+    landmarks = mean[e, 3 : 3 + 2 * n].reshape(n, 2)
+    nearest = _nearest(x, y, landmarks, nearest_landmarks)
+    act = active[e, : counters[e, 1]]
+    nodes = blanket_nodes(act, nearest, block_position[e])
+    pose_cov, covs = blanket_covariances(robot_info[e], robot_links[e], landmark_info[e], neighbour_index[e],
+                                         neighbour_info[e], neighbour_count[e], information_vector[e], mean[e],
+                                         block_position[e], nodes, nearest)  # fmt: skip
+    pose_covariance_out[e] = pose_cov
+    pose_out[e, 0] = x / half_arena
+    pose_out[e, 1] = y / half_arena
+    pose_out[e, 2] = np.cos(theta)
+    pose_out[e, 3] = np.sin(theta)
+    pose_out[e, 4] = np.sqrt(max(pose_cov[0, 0], 0.0)) / std_scale
+    pose_out[e, 5] = np.sqrt(max(pose_cov[1, 1], 0.0)) / std_scale
+    pose_out[e, 6] = np.sqrt(max(pose_cov[2, 2], 0.0)) / np.pi
+    for a in range(7):
+        pose_out[e, a] = min(max(pose_out[e, a], np.float32(-1.0)), np.float32(1.0))
+    features, mask = _landmark_features(x, y, theta, landmarks, nearest, covs, nearest_landmarks, diagonal,
+                                        std_scale, CHI2_2DOF_95)  # fmt: skip
+    landmarks_out[e] = features
+    mask_out[e] = mask
+    std = conditional_std(landmark_info[e], n)
+    confidence = np.empty(n)
+    for i in range(n):
+        confidence[i] = 1.0 / (1.0 + std[i] / std_scale)
+    map_out[e] = _belief_map(coverage[e], resolution, half_arena, x, y, theta, map_size, map_extent, landmarks,
+                             confidence)  # fmt: skip
+
+
+@njit(cache=True)
 def encode_many(coverage: UInt8Array, resolution: float, half_arena: float, max_range: float, half_fov: float,
                 map_size: int, map_extent: float, nearest_landmarks: int, diagonal: float, std_scale: float,
                 robot_info: FloatArray, robot_links: FloatArray, landmark_info: FloatArray, neighbour_index: IntArray,
@@ -549,43 +598,34 @@ def encode_many(coverage: UInt8Array, resolution: float, half_arena: float, max_
                 mean: FloatArray, block_position: IntArray, active: IntArray, counters: IntArray,
                 pose_out: Float32Array, landmarks_out: Float32Array, mask_out: Float32Array, map_out: UInt8Array,
                 pose_covariance_out: FloatArray) -> None:  # fmt: skip
-    """:meth:`BeliefEncoder.sweep` then :meth:`BeliefEncoder.encode` of a batch of SEIFs (``BatchedSEIF`` arrays).
-
-    Writes each filter's observation into ``pose_out`` (N, 7), ``landmarks_out`` (N, 4K),
-    ``mask_out`` (N, K), ``map_out`` (N, 3, H, W) and the Markov-blanket pose covariance
-    it used into ``pose_covariance_out`` (N, 3, 3), with the same kernels and operations
-    as the single encoder.
-    """
+    """:func:`encode_env` of every SEIF of a batch, one after another."""
     for e in range(mean.shape[0]):
-        x = mean[e, 0]
-        y = mean[e, 1]
-        theta = mean[e, 2]
-        _sweep(coverage[e], resolution, half_arena, x, y, theta, max_range, half_fov)
-        n = counters[e, 0]
-        landmarks = mean[e, 3 : 3 + 2 * n].reshape(n, 2)
-        nearest = _nearest(x, y, landmarks, nearest_landmarks)
-        act = active[e, : counters[e, 1]]
-        nodes = blanket_nodes(act, nearest, block_position[e])
-        pose_cov, covs = blanket_covariances(robot_info[e], robot_links[e], landmark_info[e], neighbour_index[e],
-                                             neighbour_info[e], neighbour_count[e], information_vector[e], mean[e],
-                                             block_position[e], nodes, nearest)  # fmt: skip
-        pose_covariance_out[e] = pose_cov
-        pose_out[e, 0] = x / half_arena
-        pose_out[e, 1] = y / half_arena
-        pose_out[e, 2] = np.cos(theta)
-        pose_out[e, 3] = np.sin(theta)
-        pose_out[e, 4] = np.sqrt(max(pose_cov[0, 0], 0.0)) / std_scale
-        pose_out[e, 5] = np.sqrt(max(pose_cov[1, 1], 0.0)) / std_scale
-        pose_out[e, 6] = np.sqrt(max(pose_cov[2, 2], 0.0)) / np.pi
-        for a in range(7):
-            pose_out[e, a] = min(max(pose_out[e, a], np.float32(-1.0)), np.float32(1.0))
-        features, mask = _landmark_features(x, y, theta, landmarks, nearest, covs, nearest_landmarks, diagonal,
-                                            std_scale, CHI2_2DOF_95)  # fmt: skip
-        landmarks_out[e] = features
-        mask_out[e] = mask
-        std = conditional_std(landmark_info[e], n)
-        confidence = np.empty(n)
-        for i in range(n):
-            confidence[i] = 1.0 / (1.0 + std[i] / std_scale)
-        map_out[e] = _belief_map(coverage[e], resolution, half_arena, x, y, theta, map_size, map_extent, landmarks,
-                                 confidence)  # fmt: skip
+        encode_env(
+            e,
+            coverage,
+            resolution,
+            half_arena,
+            max_range,
+            half_fov,
+            map_size,
+            map_extent,
+            nearest_landmarks,
+            diagonal,
+            std_scale,
+            robot_info,
+            robot_links,
+            landmark_info,
+            neighbour_index,
+            neighbour_info,
+            neighbour_count,
+            information_vector,
+            mean,
+            block_position,
+            active,
+            counters,
+            pose_out,
+            landmarks_out,
+            mask_out,
+            map_out,
+            pose_covariance_out,
+        )

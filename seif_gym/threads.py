@@ -1,4 +1,4 @@
-"""BLAS thread limits for seif_gym's command lines: one small helper over ``threadpoolctl``.
+"""Threads: BLAS limits for seif_gym's command lines, and numba's threads for the batched kernels.
 
 The filters factorise small dense blocks (tens to a few hundred rows), where
 BLAS threads cost far more in synchronisation than they save: on a loaded
@@ -11,13 +11,72 @@ loaded and sets their thread counts through their own APIs).
 
 >>> from seif_gym.threads import limit_blas_threads
 >>> libraries = limit_blas_threads(1)   # numpy's and scipy's BLAS, process-wide
+
+With ``num_threads > 1`` the native vector env runs its envs' kernels in one
+``numba.prange`` loop; :func:`numba_threads` runs such a loop on a given
+number of numba's threads (each env's arithmetic is the same on any number).
+One thread (the default) never starts numba's thread pool.
+
+>>> from seif_gym.threads import numba_threads
+>>> with numba_threads(1):
+...     pass   # numba's parallel kernels run on one thread here
 """
 
 from __future__ import annotations
 
+import contextlib
+from collections.abc import Iterator
+
 import numpy as np
 
-__all__ = ["limit_blas_threads"]
+__all__ = ["limit_blas_threads", "numba_threads"]
+
+_numba_pool_started = False
+
+
+def _start_numba_pool() -> None:
+    """Start numba's thread pool once per process, leaving OpenMP's thread counts as they were.
+
+    Numba picks its threading layer when the pool starts (``NUMBA_THREADING_LAYER``; by default TBB,
+    else GNU OpenMP where it finds it: torch loads it, else its own work queue). Starting it on GNU
+    OpenMP set torch's OpenMP thread count to numba's (``OMP_NUM_THREADS=1`` undone: measured, and
+    PPO's weights changed with it), so the counts are put back after the start. That layer also kills
+    a ``fork``-ed child that runs a parallel kernel ("fork() called from a process already using GNU
+    OpenMP"): ``NUMBA_THREADING_LAYER=forksafe`` picks a layer without that limit (numba's work queue
+    here, which shared 256 envs out over 2 cores 1.1x faster than one thread where OpenMP was 1.6x).
+    """
+    global _numba_pool_started
+    if _numba_pool_started:
+        return
+    import numba
+    from threadpoolctl import threadpool_limits
+
+    with threadpool_limits(limits=None, user_api="openmp"):  # restores the OpenMP thread counts on exit
+        numba.get_num_threads()  # starts the pool (a no-op where it runs already)
+    _numba_pool_started = True
+
+
+@contextlib.contextmanager
+def numba_threads(count: int | None = None) -> Iterator[None]:
+    """Run numba's parallel kernels on ``count`` threads inside the block (``None``: the current count).
+
+    Numba's count is per calling thread; it is put back on exit. The first use starts numba's thread
+    pool (:func:`_start_numba_pool`).
+
+    Parameters
+    ----------
+    count : int or None
+        Threads, from 1 to ``numba.config.NUMBA_NUM_THREADS``.
+    """
+    _start_numba_pool()
+    import numba
+
+    previous = numba.get_num_threads()
+    numba.set_num_threads(previous if count is None else count)
+    try:
+        yield
+    finally:
+        numba.set_num_threads(previous)
 
 
 def limit_blas_threads(count: int = 1) -> list[str]:

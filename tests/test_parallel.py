@@ -6,6 +6,7 @@ The Ray backend is tested on a two-node loopback cluster in tests/test_ray.py.
 from __future__ import annotations
 
 import json
+import re
 import subprocess
 import sys
 
@@ -97,6 +98,7 @@ def test_evaluate_command_runs_on_workers(tmp_path):
     command += ["--env-kwargs", json.dumps({"max_episode_steps": 10}), "--out", str(tmp_path), "--quiet"]
     done = subprocess.run([*command, "--workers", "2"], capture_output=True, text=True, timeout=300)
     assert done.returncode == 0, done.stderr
-    assert "processes: 2 tasks on 2 processes or nodes" in done.stdout
+    # a pool may hand both short tasks to the worker that started first: one or two processes
+    assert re.search(r"processes: 2 tasks on [12] processes or nodes", done.stdout), done.stdout
     bad = subprocess.run([*command, "--workers", "0"], capture_output=True, text=True, timeout=300)
     assert bad.returncode == 2 and "workers must be a positive int" in bad.stderr

@@ -2,7 +2,12 @@
 
 from __future__ import annotations
 
+import os
+import subprocess
+import sys
+
 import gymnasium as gym
+import numba
 import numpy as np
 import pytest
 from gymnasium.vector import AutoresetMode, SyncVectorEnv
@@ -34,12 +39,21 @@ def _assert_equal(a, b, where: str) -> None:
         assert a == b, f"{where}: {a!r} vs {b!r}"
 
 
-@pytest.mark.parametrize("mode", [AutoresetMode.NEXT_STEP, AutoresetMode.SAME_STEP])
-def test_vector_env_equals_sync_vector_env(mode):
-    num_envs, steps, limit = 3, 120, 30
+@pytest.mark.parametrize(
+    "mode, threads, num_envs",
+    [
+        (AutoresetMode.NEXT_STEP, 1, 3),
+        (AutoresetMode.SAME_STEP, 1, 3),
+        (AutoresetMode.NEXT_STEP, numba.config.NUMBA_NUM_THREADS, 3),  # the parallel loop
+        (AutoresetMode.SAME_STEP, numba.config.NUMBA_NUM_THREADS, 40),  # envs shared out over the threads
+    ],
+)
+def test_vector_env_equals_sync_vector_env(mode, threads, num_envs):
+    steps, limit = 120, 30
     kwargs = {"divergence_threshold": 0.06}  # some episodes end by divergence, the others by the time limit
-    native = SeifExploreVectorEnv(num_envs, max_episode_steps=limit, autoreset_mode=mode, **kwargs)
+    native = SeifExploreVectorEnv(num_envs, max_episode_steps=limit, autoreset_mode=mode, num_threads=threads, **kwargs)
     assert native.backend == "compiled" and native.metadata["autoreset_mode"] == mode
+    assert native.num_threads == threads
     reference = SyncVectorEnv([lambda: gym.make("SeifExplore-v1", max_episode_steps=limit, **kwargs)
                                for _ in range(num_envs)], autoreset_mode=mode)  # fmt: skip
     observations, infos = native.reset(seed=11)
@@ -74,6 +88,49 @@ def test_vector_env_rejects_bad_actions_before_any_env_moves():
         SeifExploreVectorEnv(0)
     with pytest.raises(ValueError, match="autoreset_mode"):
         SeifExploreVectorEnv(1, autoreset_mode="Disabled")
+    for threads in (0, numba.config.NUMBA_NUM_THREADS + 1, 1.5, True, None):
+        with pytest.raises(ValueError, match="num_threads"):
+            SeifExploreVectorEnv(1, num_threads=threads)
+
+
+_THREADED_STEP = """
+import multiprocessing
+import sys
+import torch
+import numba, numpy as np
+import seif_gym.envs.vector as vector
+assert torch.get_num_threads() == 1
+env = vector.SeifExploreVectorEnv(4, max_episode_steps=5, num_threads=2)
+env.reset(seed=0)
+env.step(np.zeros((4, 2)))
+print(torch.get_num_threads(), numba.get_num_threads() == numba.config.NUMBA_NUM_THREADS)
+if sys.argv[1] == "fork":
+    child = multiprocessing.get_context("fork").Process(target=env.step, args=(np.zeros((4, 2)),))
+    child.start()
+    child.join(120)
+    print(child.exitcode)
+"""
+
+
+def _threaded_step(then: str, **variables: str) -> list[str]:
+    """Run ``_THREADED_STEP`` in a fresh process (numba's pool starts once per process)."""
+    pytest.importorskip("torch", reason="torch is in the train extra")
+    # as in the test session and most launchers: OpenMP limited to one thread before torch loads
+    env = {**os.environ, "OMP_NUM_THREADS": "1", "NUMBA_NUM_THREADS": "2", **variables}
+    command = [sys.executable, "-c", _THREADED_STEP, then]
+    result = subprocess.run(command, capture_output=True, text=True, timeout=600, env=env)
+    assert result.returncode == 0, result.stderr[-2000:]
+    return result.stdout.split()
+
+
+def test_threads_leave_torchs_thread_count_alone():
+    """Starting numba's pool on GNU OpenMP (its default where torch is loaded) set torch's threads to 2."""
+    assert _threaded_step("stay") == ["1", "True"]
+
+
+def test_threads_on_the_forksafe_layer_survive_a_fork():
+    """The documented way to fork after threads: on GNU OpenMP the child is killed (exit code -15)."""
+    assert _threaded_step("fork", NUMBA_THREADING_LAYER="forksafe") == ["1", "True", "0"]
 
 
 def test_sync_backend_renders_sub_env_0_too():

@@ -3,7 +3,9 @@
 A step of the single env (:class:`~seif_gym.envs.explore.SeifExploreEnv`)
 spends most of its ~100 µs in some two hundred small Python calls around a
 ~30 µs filter. Here one ``step`` of N envs is a handful of compiled calls, each
-looping over the envs: the worlds (:class:`~seif_gym.world.BatchedWorld`), the
+looping over the envs (with ``num_threads > 1``, one parallel loop on numba's threads:
+:mod:`seif_gym.threads`): the worlds
+(:class:`~seif_gym.world.BatchedWorld`), the
 SEIFs (:class:`~seif_gym.slam.batched.BatchedSEIF`), the observations
 (:func:`~seif_gym.observation.encode_many`) and the rewards and infos
 (:func:`_score_many`). No per-env Python object takes part in a step; an
@@ -34,23 +36,64 @@ import math
 from typing import Any
 
 import gymnasium as gym
+import numba
 import numpy as np
 from gymnasium.vector import AutoresetMode, SyncVectorEnv, VectorEnv
 from gymnasium.vector.utils import batch_space, concatenate, create_empty_array
-from numba import njit
+from numba import njit, prange
 from numpy.typing import ArrayLike
 
 from seif_gym.envs.explore import Measurements, SeifExploreEnv
 from seif_gym.metrics import map_error_kernel, nees_kernel
-from seif_gym.observation import encode_many
+from seif_gym.observation import encode_env, encode_many
 from seif_gym.slam import _kernels
 from seif_gym.slam.batched import BatchedSEIF
 from seif_gym.slam.models import VelocityMotionModel, wrap_angle
 from seif_gym.slam.seif import DENSE_MARGINALS_UP_TO, SEIF, exact_marginal_covariance
-from seif_gym.type_aliases import BoolArray, FloatArray, IntArray
+from seif_gym.threads import numba_threads
+from seif_gym.type_aliases import BoolArray, Float32Array, FloatArray, IntArray, UInt8Array
 from seif_gym.world import BatchedWorld
 
 __all__ = ["SeifExploreVectorEnv"]
+
+
+@njit(cache=True)
+def _score_env(e: int, true_poses: FloatArray, truth: FloatArray, mean: FloatArray, counters: IntArray, ids: IntArray,
+               robot_info: FloatArray, robot_links: FloatArray, landmark_info: FloatArray, neighbour_index: IntArray,
+               neighbour_info: FloatArray, neighbour_count: IntArray, information_vector: FloatArray,
+               block_position: IntArray, blanket_covariances: FloatArray, d_cap: float, previous_error: FloatArray,
+               wall: BoolArray, wall_penalty: float, divergence_threshold: float, dense_up_to: int,
+               reward: FloatArray, map_error: FloatArray, pose_error: FloatArray, diverged: BoolArray,
+               pose_nees: FloatArray, pose_nees_blanket: FloatArray) -> None:  # fmt: skip
+    """Reward, map error, pose error, divergence and the two pose NEES of env ``e`` (``SeifExploreEnv.step``).
+
+    ``pose_nees[e]`` is left NaN for a map of more than ``dense_up_to`` landmarks: a dense factorisation
+    of its Omega does not belong in a step, the caller solves those sparsely.
+    """
+    error = np.empty(3)
+    n = counters[e, 0]
+    estimates = mean[e, 3 : 3 + 2 * n].reshape(n, 2)
+    current = map_error_kernel(estimates, truth[e], ids[e, :n], d_cap)
+    reward[e] = previous_error[e] - current
+    if wall[e]:
+        reward[e] -= wall_penalty
+    map_error[e] = current
+    previous_error[e] = current
+    dx = true_poses[e, 0] - mean[e, 0]
+    dy = true_poses[e, 1] - mean[e, 1]
+    pose_error[e] = np.hypot(dx, dy)
+    diverged[e] = pose_error[e] > divergence_threshold
+    error[0] = dx
+    error[1] = dy
+    error[2] = _kernels._wrap_float(true_poses[e, 2] - mean[e, 2])
+    pose_nees_blanket[e] = nees_kernel(error, blanket_covariances[e])
+    if n > dense_up_to:
+        pose_nees[e] = np.nan  # a large map: the caller's sparse factorisation, as the single env's
+        return
+    cov = _kernels.exact_marginal(robot_info[e], robot_links[e], landmark_info[e], neighbour_index[e],
+                                  neighbour_info[e], neighbour_count[e], information_vector[e], mean[e],
+                                  block_position[e], n, np.arange(3))  # fmt: skip
+    pose_nees[e] = nees_kernel(error, 0.5 * (cov + cov.T))
 
 
 @njit(cache=True)
@@ -61,36 +104,120 @@ def _score_many(true_poses: FloatArray, truth: FloatArray, mean: FloatArray, cou
                 wall: BoolArray, wall_penalty: float, divergence_threshold: float, dense_up_to: int,
                 reward: FloatArray, map_error: FloatArray, pose_error: FloatArray, diverged: BoolArray,
                 pose_nees: FloatArray, pose_nees_blanket: FloatArray) -> None:  # fmt: skip
-    """Reward, map error, pose error, divergence and the two pose NEES of every env (``SeifExploreEnv.step``).
-
-    ``pose_nees`` is left NaN for maps of more than ``dense_up_to`` landmarks: a dense factorisation of
-    their Omega does not belong in a step, the caller solves those sparsely.
-    """
+    """:func:`_score_env` of every env, one after another."""
     for e in range(mean.shape[0]):
-        error = np.empty(3)
-        n = counters[e, 0]
-        estimates = mean[e, 3 : 3 + 2 * n].reshape(n, 2)
-        current = map_error_kernel(estimates, truth[e], ids[e, :n], d_cap)
-        reward[e] = previous_error[e] - current
-        if wall[e]:
-            reward[e] -= wall_penalty
-        map_error[e] = current
-        previous_error[e] = current
-        dx = true_poses[e, 0] - mean[e, 0]
-        dy = true_poses[e, 1] - mean[e, 1]
-        pose_error[e] = np.hypot(dx, dy)
-        diverged[e] = pose_error[e] > divergence_threshold
-        error[0] = dx
-        error[1] = dy
-        error[2] = _kernels._wrap_float(true_poses[e, 2] - mean[e, 2])
-        pose_nees_blanket[e] = nees_kernel(error, blanket_covariances[e])
-        if n > dense_up_to:
-            pose_nees[e] = np.nan  # a large map: the caller's sparse factorisation, as the single env's
-            continue
-        cov = _kernels.exact_marginal(robot_info[e], robot_links[e], landmark_info[e], neighbour_index[e],
-                                      neighbour_info[e], neighbour_count[e], information_vector[e], mean[e],
-                                      block_position[e], n, np.arange(3))  # fmt: skip
-        pose_nees[e] = nees_kernel(error, 0.5 * (cov + cov.T))
+        _score_env(e, true_poses, truth, mean, counters, ids, robot_info, robot_links, landmark_info, neighbour_index,
+                   neighbour_info, neighbour_count, information_vector, block_position, blanket_covariances, d_cap,
+                   previous_error, wall, wall_penalty, divergence_threshold, dense_up_to, reward, map_error,
+                   pose_error, diverged, pose_nees, pose_nees_blanket)  # fmt: skip
+
+
+@njit(cache=True, parallel=True)
+def _filter_and_score_parallel(
+    robot_info: FloatArray, robot_links: FloatArray, landmark_info: FloatArray, neighbour_index: IntArray,
+    neighbour_info: FloatArray, neighbour_count: IntArray, information_vector: FloatArray, mean: FloatArray,
+    block_position: IntArray, active: IntArray, counters: IntArray, is_active: BoolArray, last_observed: IntArray,
+    id_to_index: IntArray, ids: IntArray, queue: IntArray, queued: BoolArray, queue_state: IntArray,
+    controls: FloatArray, dt: float, alphas: FloatArray, floor: float, ranges: FloatArray, bearings: FloatArray,
+    measured: IntArray, measured_count: IntArray, noise_info: FloatArray, max_active: int, recovery_landmarks: int,
+    budget: int, relaxation: float, tolerance: float,
+    coverage: UInt8Array, resolution: float, half_arena: float, max_range: float, half_fov: float, map_size: int,
+    map_extent: float, nearest_landmarks: int, diagonal: float, std_scale: float, pose_out: Float32Array,
+    landmarks_out: Float32Array, mask_out: Float32Array, map_out: UInt8Array, blanket_covariances: FloatArray,
+    true_poses: FloatArray, truth: FloatArray, d_cap: float, previous_error: FloatArray, wall: BoolArray,
+    wall_penalty: float, divergence_threshold: float, dense_up_to: int, reward: FloatArray, map_error: FloatArray,
+    pose_error: FloatArray, diverged: BoolArray, pose_nees: FloatArray, pose_nees_blanket: FloatArray,
+) -> None:  # fmt: skip
+    """Motion update, measurement update, observation and score of every env, the envs on numba's threads.
+
+    Per env exactly the kernels, in the order, that the one-thread path calls for all envs in turn
+    (``BatchedSEIF.predict`` and ``update_trusted``, :func:`~seif_gym.observation.encode_many`,
+    :func:`_score_many`): the envs are independent, so the results are the same bits.
+    """
+    active_count = counters[:, 1].copy()
+    for e in prange(mean.shape[0]):
+        _kernels.seif_predict_env(
+            e,
+            robot_info,
+            robot_links,
+            landmark_info,
+            neighbour_index,
+            neighbour_info,
+            neighbour_count,
+            information_vector,
+            mean,
+            block_position,
+            active,
+            active_count,
+            controls,
+            dt,
+            alphas,
+            floor,
+        )
+        _kernels.seif_update_env(
+            e,
+            robot_info,
+            robot_links,
+            landmark_info,
+            neighbour_index,
+            neighbour_info,
+            neighbour_count,
+            information_vector,
+            mean,
+            block_position,
+            active,
+            counters,
+            is_active,
+            last_observed,
+            id_to_index,
+            ids,
+            queue,
+            queued,
+            queue_state,
+            ranges,
+            bearings,
+            measured,
+            measured_count,
+            noise_info,
+            max_active,
+            recovery_landmarks,
+            budget,
+            relaxation,
+            tolerance,
+        )
+        encode_env(
+            e,
+            coverage,
+            resolution,
+            half_arena,
+            max_range,
+            half_fov,
+            map_size,
+            map_extent,
+            nearest_landmarks,
+            diagonal,
+            std_scale,
+            robot_info,
+            robot_links,
+            landmark_info,
+            neighbour_index,
+            neighbour_info,
+            neighbour_count,
+            information_vector,
+            mean,
+            block_position,
+            active,
+            counters,
+            pose_out,
+            landmarks_out,
+            mask_out,
+            map_out,
+            blanket_covariances,
+        )
+        _score_env(e, true_poses, truth, mean, counters, ids, robot_info, robot_links, landmark_info, neighbour_index,
+                   neighbour_info, neighbour_count, information_vector, block_position, blanket_covariances, d_cap,
+                   previous_error, wall, wall_penalty, divergence_threshold, dense_up_to, reward, map_error,
+                   pose_error, diverged, pose_nees, pose_nees_blanket)  # fmt: skip
 
 
 def _same(env: gym.Env) -> gym.Env:
@@ -113,6 +240,13 @@ class SeifExploreVectorEnv(VectorEnv):
         ``info["final_obs"]``).
     render_mode : {"rgb_array"} or None
         ``render()`` draws sub-env 0.
+    num_threads : int
+        Threads the compiled kernels share the envs out to (numba's threads, at most
+        ``NUMBA_NUM_THREADS``, the cores; each env's arithmetic is the same on any number;
+        :func:`seif_gym.threads.numba_threads`). Default 1: numba's thread pool is not started. More
+        pay with many envs on cores nobody else wants, and cost where other busy processes share them;
+        with numba's OpenMP layer, a process that has started the pool must not ``fork`` children that
+        run numba's parallel code (``NUMBA_THREADING_LAYER=forksafe`` avoids it, at some speed).
     **kwargs
         The keyword arguments of :class:`~seif_gym.envs.explore.SeifExploreEnv`.
     """
@@ -121,7 +255,7 @@ class SeifExploreVectorEnv(VectorEnv):
 
     def __init__(self, num_envs: int = 1, *, max_episode_steps: int | None = None,
                  autoreset_mode: AutoresetMode | str = AutoresetMode.NEXT_STEP, render_mode: str | None = None,
-                 **kwargs: Any) -> None:  # fmt: skip
+                 num_threads: int = 1, **kwargs: Any) -> None:  # fmt: skip
         if isinstance(num_envs, bool) or not isinstance(num_envs, (int, np.integer)) or num_envs < 1:
             raise ValueError(f"num_envs must be a positive int, got {num_envs!r}")
         if max_episode_steps is not None and (isinstance(max_episode_steps, bool) or
@@ -137,7 +271,16 @@ class SeifExploreVectorEnv(VectorEnv):
             raise ValueError(f"autoreset_mode must be NextStep or SameStep, got {mode.value!r}")
         if render_mode not in (None, "rgb_array"):
             raise ValueError(f"render_mode must be 'rgb_array' or None, got {render_mode!r}")
+        if (isinstance(num_threads, bool) or not isinstance(num_threads, (int, np.integer))
+                or not 1 <= num_threads <= numba.config.NUMBA_NUM_THREADS):  # fmt: skip
+            raise ValueError(f"num_threads must be an int in [1, {numba.config.NUMBA_NUM_THREADS}] "
+                             f"(NUMBA_NUM_THREADS), got {num_threads!r}")  # fmt: skip
+        #: threads of the compiled kernels
+        self.num_threads = int(num_threads)
         self.num_envs = int(num_envs)
+        # more threads: one prange loop over the envs for the filters, observations and scores; one thread:
+        # a plain loop per kernel, which never starts numba's thread pool (seif_gym.threads: why that matters)
+        self._one_compiled_loop = self.num_threads > 1
         self.max_episode_steps = None if max_episode_steps is None else int(max_episode_steps)
         self.autoreset_mode = mode
         self.metadata = {**self.metadata, "autoreset_mode": mode}
@@ -250,28 +393,47 @@ class SeifExploreVectorEnv(VectorEnv):
         world, filters = self._world, self._filters
         executed, wall = world.step(controls, dt)
         ranges, bearings, ids, counts = world.measure()
-        filters.predict(executed, dt)
-        filters.update(ranges, bearings, ids, counts)
         obs = self._observations
-        config, sensor = template.observation_config, template.sensor
+        config, sensor, reward_config = template.observation_config, template.sensor, template.reward_config
         half_fov = 0.5 * sensor.fov if sensor.fov < 2.0 * math.pi else math.pi
-        encode_many(self._coverage, config.coverage_resolution, template.encoder.half_arena, sensor.max_range,
-                    half_fov, config.map_size, config.map_extent, config.nearest_landmarks,
-                    template.world_config.arena_size * math.sqrt(2.0), config.std_scale, filters.robot_info,
-                    filters.robot_links, filters.landmark_info, filters.neighbour_index, filters.neighbour_info,
-                    filters.neighbour_count, filters.information_vector, filters.mean, filters.block_position,
-                    filters.active, filters.counters, obs["pose"], obs["landmarks"], obs["landmarks_mask"],
-                    obs["belief_map"], self._blanket_covariances)  # fmt: skip
+        diagonal = template.world_config.arena_size * math.sqrt(2.0)
         rewards, map_error, pose_error = np.zeros(n), np.zeros(n), np.zeros(n)
         diverged = np.zeros(n, dtype=bool)
         pose_nees, pose_nees_blanket = np.zeros(n), np.zeros(n)
-        reward_config = template.reward_config
-        _score_many(world.poses, self._truth, filters.mean, filters.counters, filters.ids, filters.robot_info,
-                    filters.robot_links, filters.landmark_info, filters.neighbour_index, filters.neighbour_info,
-                    filters.neighbour_count, filters.information_vector, filters.block_position,
-                    self._blanket_covariances, reward_config.d_cap, self._previous_error, wall,
+        if not self._one_compiled_loop:
+            filters.predict(executed, dt)
+            filters.update_trusted(ranges, bearings, ids, counts)  # the worlds' own measurements: valid
+            encode_many(self._coverage, config.coverage_resolution, template.encoder.half_arena, sensor.max_range,
+                        half_fov, config.map_size, config.map_extent, config.nearest_landmarks, diagonal,
+                        config.std_scale, filters.robot_info, filters.robot_links, filters.landmark_info,
+                        filters.neighbour_index, filters.neighbour_info, filters.neighbour_count,
+                        filters.information_vector, filters.mean, filters.block_position, filters.active,
+                        filters.counters, obs["pose"], obs["landmarks"], obs["landmarks_mask"], obs["belief_map"],
+                        self._blanket_covariances)  # fmt: skip
+            _score_many(world.poses, self._truth, filters.mean, filters.counters, filters.ids, filters.robot_info,
+                        filters.robot_links, filters.landmark_info, filters.neighbour_index, filters.neighbour_info,
+                        filters.neighbour_count, filters.information_vector, filters.block_position,
+                        self._blanket_covariances, reward_config.d_cap, self._previous_error, wall,
+                        reward_config.wall_penalty, reward_config.divergence_threshold, DENSE_MARGINALS_UP_TO, rewards,
+                        map_error, pose_error, diverged, pose_nees, pose_nees_blanket)  # fmt: skip
+        else:
+            with numba_threads(self.num_threads):
+                _filter_and_score_parallel(
+                    filters.robot_info, filters.robot_links, filters.landmark_info, filters.neighbour_index,
+                    filters.neighbour_info, filters.neighbour_count, filters.information_vector, filters.mean,
+                    filters.block_position, filters.active, filters.counters, filters.is_active, filters.last_observed,
+                    filters.id_to_index, filters.ids, filters.queue, filters.queued, filters.queue_state, executed, dt,
+                    filters._alphas, filters._floor, ranges, bearings, ids, counts, filters._noise_info,
+                    filters.max_active, filters.recovery_landmarks, filters.recovery_budget,
+                    filters.recovery_relaxation, filters.recovery_tolerance,
+                    self._coverage, config.coverage_resolution, template.encoder.half_arena, sensor.max_range,
+                    half_fov, config.map_size, config.map_extent, config.nearest_landmarks, diagonal,
+                    config.std_scale, obs["pose"], obs["landmarks"], obs["landmarks_mask"], obs["belief_map"],
+                    self._blanket_covariances,
+                    world.poses, self._truth, reward_config.d_cap, self._previous_error, wall,
                     reward_config.wall_penalty, reward_config.divergence_threshold, DENSE_MARGINALS_UP_TO, rewards,
-                    map_error, pose_error, diverged, pose_nees, pose_nees_blanket)  # fmt: skip
+                    map_error, pose_error, diverged, pose_nees, pose_nees_blanket,
+                )  # fmt: skip
         for e in np.flatnonzero(filters.counters[:, 0] > DENSE_MARGINALS_UP_TO).tolist():
             # large maps: the single env's sparse LU on this env's arrays (exactly what it computes)
             error = world.poses[e] - filters.mean[e, :3]
@@ -318,10 +480,13 @@ class SeifExploreVectorEnv(VectorEnv):
         total = self.envs[0].world_config.num_landmarks
         active = np.empty(n, dtype=object)
         measurements = np.empty(n, dtype=object)
-        for e in range(n):
-            active[e] = tuple(filters.ids[e, filters.active[e, : filters.counters[e, 1]]].tolist())
-            m = counts[e]
-            measurements[e] = Measurements(ranges[e, :m].copy(), bearings[e, :m].copy(), ids[e, :m].copy())
+        # one gather and one copy for all envs, then per env a tuple and views of the copies
+        active_ids = np.take_along_axis(filters.ids, filters.active, axis=1).tolist()
+        active_counts = filters.counters[:, 1].tolist()
+        ranges, bearings, ids = ranges.copy(), bearings.copy(), ids.copy()
+        for e, m in enumerate(counts.tolist()):
+            active[e] = tuple(active_ids[e][: active_counts[e]])
+            measurements[e] = Measurements(ranges[e, :m], bearings[e, :m], ids[e, :m])
         # the single env's info uses math.hypot (CPython's own algorithm, not libm's hypot, which the
         # divergence test uses): the same function here, so that the values agree to the last bit
         error = world.poses[:, :2] - filters.mean[:, :2]

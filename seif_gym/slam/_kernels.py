@@ -807,18 +807,27 @@ def rewrap_heading(robot_info, robot_links, information_vector, mean, active):
 
 
 @njit(cache=True)
+def seif_predict_env(e, robot_info, robot_links, landmark_info, neighbour_index, neighbour_info, neighbour_count,
+                     information_vector, mean, block_position, active, active_count, controls, dt, alphas, floor):  # fmt: skip
+    """``SEIF.predict_trusted`` of filter ``e`` of a batch (arrays with a leading filter axis)."""
+    delta = np.empty(3)
+    jacobian = np.empty((3, 3))
+    noise = np.empty((3, 3))
+    velocity_linearization(mean[e, 2], controls[e, 0], controls[e, 1], dt, alphas, floor, delta, jacobian, noise)
+    act = active[e, : active_count[e]]
+    predict(robot_info[e], robot_links[e], landmark_info[e], neighbour_index[e], neighbour_info[e],
+            neighbour_count[e], information_vector[e], mean[e], block_position[e], act, delta, jacobian, noise)  # fmt: skip
+    rewrap_heading(robot_info[e], robot_links[e], information_vector[e], mean[e], act)
+
+
+@njit(cache=True)
 def seif_predict_many(robot_info, robot_links, landmark_info, neighbour_index, neighbour_info, neighbour_count,
                       information_vector, mean, block_position, active, active_count, controls, dt, alphas, floor):  # fmt: skip
-    """``SEIF.predict_trusted`` of every filter ``e`` of a batch (arrays with a leading filter axis)."""
+    """:func:`seif_predict_env` of every filter of a batch, one after another."""
     for e in range(controls.shape[0]):
-        delta = np.empty(3)
-        jacobian = np.empty((3, 3))
-        noise = np.empty((3, 3))
-        velocity_linearization(mean[e, 2], controls[e, 0], controls[e, 1], dt, alphas, floor, delta, jacobian, noise)
-        act = active[e, : active_count[e]]
-        predict(robot_info[e], robot_links[e], landmark_info[e], neighbour_index[e], neighbour_info[e],
-                neighbour_count[e], information_vector[e], mean[e], block_position[e], act, delta, jacobian, noise)  # fmt: skip
-        rewrap_heading(robot_info[e], robot_links[e], information_vector[e], mean[e], act)
+        seif_predict_env(e, robot_info, robot_links, landmark_info, neighbour_index, neighbour_info,
+                         neighbour_count, information_vector, mean, block_position, active, active_count, controls,
+                         dt, alphas, floor)  # fmt: skip
 
 
 @njit(cache=True)
@@ -919,15 +928,27 @@ def seif_update_one(robot_info, robot_links, landmark_info, neighbour_index, nei
 
 
 @njit(cache=True)
+def seif_update_env(e, robot_info, robot_links, landmark_info, neighbour_index, neighbour_info, neighbour_count,
+                    information_vector, mean, block_position, active, counters, is_active, last_observed,
+                    id_to_index, ids, queue, queued, queue_state, ranges, bearings, measured, measured_count,
+                    noise_info, max_active, recovery_landmarks, budget, relaxation, tolerance):  # fmt: skip
+    """:func:`seif_update_one` of filter ``e`` of a batch, with its first ``measured_count[e]`` measurements."""
+    m = measured_count[e]
+    seif_update_one(robot_info[e], robot_links[e], landmark_info[e], neighbour_index[e], neighbour_info[e],
+                    neighbour_count[e], information_vector[e], mean[e], block_position[e], active[e],
+                    counters[e], is_active[e], last_observed[e], id_to_index[e], ids[e], queue[e], queued[e],
+                    queue_state[e], ranges[e, :m], bearings[e, :m], measured[e, :m], noise_info, max_active,
+                    recovery_landmarks, budget, relaxation, tolerance)  # fmt: skip
+
+
+@njit(cache=True)
 def seif_update_many(robot_info, robot_links, landmark_info, neighbour_index, neighbour_info, neighbour_count,
                      information_vector, mean, block_position, active, counters, is_active, last_observed,
                      id_to_index, ids, queue, queued, queue_state, ranges, bearings, measured, measured_count,
                      noise_info, max_active, recovery_landmarks, budget, relaxation, tolerance):  # fmt: skip
-    """:func:`seif_update_one` for every filter ``e``, with its first ``measured_count[e]`` measurements."""
+    """:func:`seif_update_env` of every filter of a batch, one after another."""
     for e in range(measured_count.shape[0]):
-        m = measured_count[e]
-        seif_update_one(robot_info[e], robot_links[e], landmark_info[e], neighbour_index[e], neighbour_info[e],
-                        neighbour_count[e], information_vector[e], mean[e], block_position[e], active[e],
-                        counters[e], is_active[e], last_observed[e], id_to_index[e], ids[e], queue[e], queued[e],
-                        queue_state[e], ranges[e, :m], bearings[e, :m], measured[e, :m], noise_info, max_active,
-                        recovery_landmarks, budget, relaxation, tolerance)  # fmt: skip
+        seif_update_env(e, robot_info, robot_links, landmark_info, neighbour_index, neighbour_info, neighbour_count,
+                        information_vector, mean, block_position, active, counters, is_active, last_observed,
+                        id_to_index, ids, queue, queued, queue_state, ranges, bearings, measured, measured_count,
+                        noise_info, max_active, recovery_landmarks, budget, relaxation, tolerance)  # fmt: skip

@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import numpy as np
 import scipy.linalg
+from numba import njit
 from numpy.typing import ArrayLike
 
 from seif_gym.slam import _kernels
@@ -39,6 +40,20 @@ from seif_gym.slam.seif import SEIF
 from seif_gym.type_aliases import FloatArray, IntArray
 
 __all__ = ["BatchedSEIF"]
+
+
+@njit(cache=True)
+def _new_landmarks(ids: IntArray, counts: IntArray, id_to_index: IntArray) -> tuple[int, IntArray]:
+    """The first filter whose update repeats an id (-1: none), and each filter's count of unmapped ids."""
+    new = np.zeros(counts.shape[0], dtype=np.int64)
+    for e in range(counts.shape[0]):
+        for k in range(counts[e]):
+            for j in range(k):
+                if ids[e, j] == ids[e, k]:
+                    return e, new
+            if id_to_index[e, ids[e, k]] < 0:
+                new[e] += 1
+    return -1, new
 
 
 #: positions in ``BatchedSEIF.counters``
@@ -249,21 +264,25 @@ class BatchedSEIF:
             raise ValueError("ranges must be positive")
         if np.any((ids[used] < 0) | (ids[used] > self.max_landmark_id)):
             raise ValueError(f"ids must lie in [0, {self.max_landmark_id}]")
-        for e in np.flatnonzero(counts > 1).tolist():
-            if len(np.unique(ids[e, : counts[e]])) != counts[e]:
-                raise ValueError(f"ids must be distinct within one update (filter {e})")
-        new = np.zeros(n, dtype=np.int64)
-        for e in range(n):
-            row = ids[e, : counts[e]]
-            new[e] = np.count_nonzero(self.id_to_index[e, row] < 0)
+        ids = np.ascontiguousarray(ids, dtype=np.int64)
+        counts = counts.astype(np.int64)
+        repeated, new = _new_landmarks(ids, counts, self.id_to_index)
+        if repeated >= 0:
+            raise ValueError(f"ids must be distinct within one update (filter {repeated})")
         if np.any(self.counters[:, _LANDMARKS] + new > self.capacity):
             raise ValueError(f"an update would exceed capacity={self.capacity} landmarks")
+        self.update_trusted(np.ascontiguousarray(ranges), np.ascontiguousarray(bearings), ids, counts)
+
+    def update_trusted(self, ranges: FloatArray, bearings: FloatArray, ids: IntArray, counts: IntArray) -> None:
+        """:meth:`update` without its checks, for measurements it would accept (the native vector env's own).
+
+        ``ranges`` and ``bearings`` C-contiguous float64, ``ids`` and ``counts`` C-contiguous int64.
+        """
         _kernels.seif_update_many(
             self.robot_info, self.robot_links, self.landmark_info, self.neighbour_index, self.neighbour_info,
             self.neighbour_count, self.information_vector, self.mean, self.block_position, self.active,
             self.counters, self.is_active, self.last_observed, self.id_to_index, self.ids, self.queue, self.queued,
-            self.queue_state, np.ascontiguousarray(ranges), np.ascontiguousarray(bearings),
-            np.ascontiguousarray(ids, dtype=np.int64), counts.astype(np.int64), self._noise_info, self.max_active,
+            self.queue_state, ranges, bearings, ids, counts, self._noise_info, self.max_active,
             self.recovery_landmarks, self.recovery_budget, self.recovery_relaxation, self.recovery_tolerance,
         )  # fmt: skip
 

@@ -41,6 +41,7 @@ from matplotlib.patches import Circle, Ellipse, Patch, Polygon, Rectangle, Wedge
 from numpy.typing import ArrayLike, NDArray
 
 from seif_gym.metrics import CHI2_95_2DOF as _CHI2_95_2DOF
+from seif_gym.slam.base import InformationForm, SparseInformationForm
 
 if TYPE_CHECKING:  # pragma: no cover
     import scipy.sparse
@@ -114,11 +115,10 @@ def _block_diagonal_covariances(information: scipy.sparse.csr_array, n: int) -> 
 def _covariances(filt: SlamFilter) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """Pose covariance (3, 3) and landmark covariances (n, 2, 2), cheaply (see :data:`EXACT_ELLIPSES_LIMIT`)."""
     n = filt.num_landmarks
-    information = getattr(filt, "information_matrix", None) if n > EXACT_ELLIPSES_LIMIT else None
-    if information is None:
+    if n <= EXACT_ELLIPSES_LIMIT or not isinstance(filt, InformationForm):
         return filt.local_marginals(np.arange(n, dtype=np.int64))
     pose_cov, _ = filt.local_marginals(np.empty(0, dtype=np.int64))
-    return pose_cov, _block_diagonal_covariances(information, n)
+    return pose_cov, _block_diagonal_covariances(filt.information_matrix, n)
 
 
 class Renderer:
@@ -339,7 +339,7 @@ class Renderer:
         self._ellipses.set_angles(angles)
         self._estimates.set_data(estimates[:, 0], estimates[:, 1])
 
-        active_ids = getattr(filt, "active_landmarks", None)
+        active_ids = filt.active_landmarks if isinstance(filt, SparseInformationForm) else None
         if active_ids is not None and len(active_ids):
             active = estimates[[filt.landmark_index(int(i)) for i in np.asarray(active_ids)]]
         else:
@@ -386,11 +386,11 @@ class Renderer:
         self.figure.draw_artist(self._stats)
 
     def _draw_information(self, filt: SlamFilter) -> bool:
-        information = getattr(filt, "information_matrix", None)
         spy = self.spy_ax
-        if information is None:
+        if not isinstance(filt, InformationForm):
             spy.set_visible(False)
             return False
+        information = filt.information_matrix
         spy.set_visible(True)
         coo = information.tocoo()
         dim = information.shape[0]
@@ -413,7 +413,7 @@ class Renderer:
         self, env: SeifExploreEnv, filt: SlamFilter, true_pose: NDArray[np.float64], est_pose: NDArray[np.float64]
     ) -> None:
         name = type(filt).__name__
-        max_active = getattr(filt, "max_active", None)
+        max_active = filt.max_active if isinstance(filt, SparseInformationForm) else None
         if name == "SEIF":
             name += f" (k={max_active})" if max_active is not None else " (k=∞)"
         spec = getattr(env, "spec", None)
@@ -426,9 +426,8 @@ class Renderer:
         if map_error is not None:
             lines.append(f"map err {map_error:.2f} m")
         lines.append(f"pose err {math.hypot(*(true_pose[:2] - est_pose[:2])):.2f} m")
-        active = getattr(filt, "active_landmarks", None)
-        if active is not None:
-            lines.append(f"active {len(active)}")
+        if isinstance(filt, SparseInformationForm):
+            lines.append(f"active {len(filt.active_landmarks)}")
         self._stats.set_text("\n".join(lines))
 
     # -- human mode ------------------------------------------------------------------

@@ -18,7 +18,16 @@ from numpy.typing import ArrayLike, NDArray
 from seif_gym.metrics import filter_map_error, map_error
 from seif_gym.metrics import nees_kernel as _nees
 from seif_gym.observation import BeliefEncoder, ObservationConfig
-from seif_gym.slam import FILTERS, SEIF, RangeBearingSensor, SlamFilter, VelocityMotionModel, make_filter
+from seif_gym.slam import (
+    FILTERS,
+    SEIF,
+    InformationForm,
+    RangeBearingSensor,
+    SlamFilter,
+    SparseInformationForm,
+    VelocityMotionModel,
+    make_filter,
+)
 from seif_gym.slam.association import ASSOCIATOR_PRESETS, AssociationAudit, make_associator
 from seif_gym.slam.models import wrap_angle
 from seif_gym.slam.noise_models import PerSecondVelocityMotionModel, RangeDependentSensor
@@ -600,12 +609,11 @@ class SeifExploreEnv(gym.Env):
         _, filt = self._require_state("step")
         unmapped = self.world_config.num_landmarks - filt.num_landmarks
         prior = 2 * unmapped * -math.log(self.reward_config.d_cap**2)
-        information = getattr(filt, "information_matrix", None)
-        if information is None:
+        if not isinstance(filt, InformationForm):
             sign, log_det_cov = np.linalg.slogdet(filt.covariance())
             log_det_info = -log_det_cov
         else:
-            lu = scipy.sparse.linalg.splu(information.tocsc(), permc_spec="MMD_AT_PLUS_A")
+            lu = scipy.sparse.linalg.splu(filt.information_matrix.tocsc(), permc_spec="MMD_AT_PLUS_A")
             log_det_info = float(np.sum(np.log(np.abs(lu.U.diagonal()))))
         dims = 3 + 2 * self.world_config.num_landmarks
         return float((log_det_info + prior) / dims)
@@ -639,7 +647,9 @@ class SeifExploreEnv(gym.Env):
             "landmarks_total": int(self.world_config.num_landmarks),
             # the exact filters link the robot to every mapped landmark
             # (a tuple: its length varies, and vector envs stack arrays of one shape only)
-            "active_landmarks": tuple(np.asarray(getattr(filt, "active_landmarks", filt.landmark_ids)).tolist()),
+            "active_landmarks": tuple(
+                (filt.active_landmarks if isinstance(filt, SparseInformationForm) else filt.landmark_ids).tolist()
+            ),
             "control": np.asarray(control, dtype=np.float64).copy(),
             "executed_control": np.asarray(executed, dtype=np.float64).copy(),
             "measurements": Measurements(ranges, bearings, ids),

@@ -405,11 +405,8 @@ class SeifExploreVectorEnv(VectorEnv):
             filters.update_trusted(ranges, bearings, ids, counts)  # the worlds' own measurements: valid
             encode_many(self._coverage, config.coverage_resolution, template.encoder.half_arena, sensor.max_range,
                         half_fov, config.map_size, config.map_extent, config.nearest_landmarks, diagonal,
-                        config.std_scale, filters.robot_info, filters.robot_links, filters.landmark_info,
-                        filters.neighbour_index, filters.neighbour_info, filters.neighbour_count,
-                        filters.information_vector, filters.mean, filters.block_position, filters.active,
-                        filters.counters, obs["pose"], obs["landmarks"], obs["landmarks_mask"], obs["belief_map"],
-                        self._blanket_covariances)  # fmt: skip
+                        config.std_scale, *filters.kernel_arrays(), filters.active, filters.counters, obs["pose"],
+                        obs["landmarks"], obs["landmarks_mask"], obs["belief_map"], self._blanket_covariances)  # fmt: skip
             _score_many(world.poses, self._truth, filters.mean, filters.counters, filters.ids, filters.robot_info,
                         filters.robot_links, filters.landmark_info, filters.neighbour_index, filters.neighbour_info,
                         filters.neighbour_count, filters.information_vector, filters.block_position,
@@ -419,10 +416,7 @@ class SeifExploreVectorEnv(VectorEnv):
         else:
             with numba_threads(self.num_threads):
                 _filter_and_score_parallel(
-                    filters.robot_info, filters.robot_links, filters.landmark_info, filters.neighbour_index,
-                    filters.neighbour_info, filters.neighbour_count, filters.information_vector, filters.mean,
-                    filters.block_position, filters.active, filters.counters, filters.is_active, filters.last_observed,
-                    filters.id_to_index, filters.ids, filters.queue, filters.queued, filters.queue_state, executed, dt,
+                    *filters.kernel_arrays(), *filters.bookkeeping_arrays(), executed, dt,
                     filters._alphas, filters._floor, ranges, bearings, ids, counts, filters._noise_info,
                     filters.max_active, filters.recovery_landmarks, filters.recovery_budget,
                     filters.recovery_relaxation, filters.recovery_tolerance,

@@ -13,7 +13,7 @@ from typing import Any
 from numpy.typing import ArrayLike
 
 from seif_gym.slam.association import AssociationAudit, Associator
-from seif_gym.slam.base import SlamFilter, UnknownLandmarkError
+from seif_gym.slam.base import InformationForm, SlamFilter, SparseInformationForm, UnknownLandmarkError
 from seif_gym.slam.car_model import AckermannLaserModel
 from seif_gym.slam.eif import EIF
 from seif_gym.slam.ekf import EKF
@@ -48,10 +48,12 @@ __all__ = [
     "EIF",
     "EKF",
     "ESEIF",
+    "InformationForm",
     "MotionModel",
     "RangeBearingSensor",
     "SEIF",
     "SlamFilter",
+    "SparseInformationForm",
     "UnknownLandmarkError",
     "VelocityMotionModel",
     "wrap_angle",

@@ -13,6 +13,7 @@ from abc import ABC, abstractmethod
 from typing import Any, ClassVar
 
 import numpy as np
+import scipy.sparse
 from numpy.typing import ArrayLike, NDArray
 
 from seif_gym.slam._validation import (
@@ -26,7 +27,14 @@ from seif_gym.slam.models import MotionModel, RangeBearingSensor, wrap_angle
 from seif_gym.slam.noise_models import mahalanobis_squared
 from seif_gym.type_aliases import FloatArray
 
-__all__ = ["SlamFilter", "UnknownLandmarkError", "DEFAULT_INITIAL_POSE_COV", "COMMON_OPTIONS"]
+__all__ = [
+    "SlamFilter",
+    "InformationForm",
+    "SparseInformationForm",
+    "UnknownLandmarkError",
+    "DEFAULT_INITIAL_POSE_COV",
+    "COMMON_OPTIONS",
+]
 
 
 #: Initial pose covariance when none is given: the map frame is anchored at the
@@ -65,6 +73,36 @@ class UnknownLandmarkError(KeyError, ValueError):
 
     def __str__(self) -> str:  # KeyError quotes its message; show it plainly
         return str(self.args[0]) if self.args else ""
+
+
+class InformationForm(ABC):
+    """The information-form interface: a filter that keeps ``Omega`` and ``xi`` (EIF, SEIF, ESEIF).
+
+    What the env (``reward="information"``) and the renderer (the ``Omega`` panel, cheap ellipses)
+    read of such a filter; an EKF is not one. ``isinstance(filt, InformationForm)`` asks.
+    """
+
+    @property
+    @abstractmethod
+    def information_matrix(self) -> scipy.sparse.csr_array:
+        """``Omega`` in state order (robot, then landmarks)."""
+
+    @property
+    @abstractmethod
+    def information_vector(self) -> FloatArray:
+        """``xi`` in state order, shape (3 + 2n,)."""
+
+
+class SparseInformationForm(InformationForm):
+    """An information filter whose robot is linked only to a bounded set of *active* landmarks (SEIF, ESEIF)."""
+
+    #: The bound ``k`` on the active landmarks (``None``: no bound).
+    max_active: int | None
+
+    @property
+    @abstractmethod
+    def active_landmarks(self) -> NDArray[np.int64]:
+        """Ids of the landmarks linked to the robot, shape (a,)."""
 
 
 class SlamFilter(ABC):

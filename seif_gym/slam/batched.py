@@ -37,7 +37,7 @@ from seif_gym.slam.base import DEFAULT_INITIAL_POSE_COV
 from seif_gym.slam.information import InformationStore
 from seif_gym.slam.models import RangeBearingSensor, VelocityMotionModel, wrap_angle
 from seif_gym.slam.seif import SEIF
-from seif_gym.type_aliases import FloatArray, IntArray
+from seif_gym.type_aliases import BoolArray, FloatArray, IntArray
 
 __all__ = ["BatchedSEIF"]
 
@@ -224,12 +224,8 @@ class BatchedSEIF:
         self._check_started()
         controls = as_finite_array(controls, "controls", (self.num_filters, 2))
         dt = as_positive_scalar(dt, "dt")
-        _kernels.seif_predict_many(
-            self.robot_info, self.robot_links, self.landmark_info, self.neighbour_index, self.neighbour_info,
-            self.neighbour_count, self.information_vector, self.mean, self.block_position, self.active,
-            np.ascontiguousarray(self.counters[:, _ACTIVE]), np.ascontiguousarray(controls), dt, self._alphas,
-            self._floor,
-        )  # fmt: skip
+        _kernels.seif_predict_many(*self.kernel_arrays(), self.active, np.ascontiguousarray(self.counters[:, _ACTIVE]),
+                                   np.ascontiguousarray(controls), dt, self._alphas, self._floor)  # fmt: skip
 
     def update(self, ranges: ArrayLike, bearings: ArrayLike, ids: ArrayLike, counts: ArrayLike) -> None:
         """Measurement update of every filter with its first ``counts[e]`` measurements (known ids).
@@ -278,15 +274,26 @@ class BatchedSEIF:
 
         ``ranges`` and ``bearings`` C-contiguous float64, ``ids`` and ``counts`` C-contiguous int64.
         """
-        _kernels.seif_update_many(
-            self.robot_info, self.robot_links, self.landmark_info, self.neighbour_index, self.neighbour_info,
-            self.neighbour_count, self.information_vector, self.mean, self.block_position, self.active,
-            self.counters, self.is_active, self.last_observed, self.id_to_index, self.ids, self.queue, self.queued,
-            self.queue_state, ranges, bearings, ids, counts, self._noise_info, self.max_active,
-            self.recovery_landmarks, self.recovery_budget, self.recovery_relaxation, self.recovery_tolerance,
-        )  # fmt: skip
+        _kernels.seif_update_many(*self.kernel_arrays(), *self.bookkeeping_arrays(), ranges, bearings, ids, counts,
+                                  self._noise_info, self.max_active, self.recovery_landmarks, self.recovery_budget,
+                                  self.recovery_relaxation, self.recovery_tolerance)  # fmt: skip
 
     # -- read-only views -------------------------------------------------------------------------
+    def kernel_arrays(self) -> tuple[FloatArray, FloatArray, FloatArray, IntArray, FloatArray, IntArray, FloatArray,
+                                     FloatArray, IntArray]:  # fmt: skip
+        """The batch's information arrays in the order the kernels take them (``InformationStore.kernel_arrays``)."""
+        return (self.robot_info, self.robot_links, self.landmark_info, self.neighbour_index, self.neighbour_info,
+                self.neighbour_count, self.information_vector, self.mean, self.block_position)  # fmt: skip
+
+    def bookkeeping_arrays(self) -> tuple[IntArray, IntArray, BoolArray, IntArray, IntArray, IntArray, IntArray,
+                                          BoolArray, IntArray]:  # fmt: skip
+        """The rest of the batch's state, in the kernels' order after :meth:`kernel_arrays`.
+
+        ``active, counters, is_active, last_observed, id_to_index, ids, queue, queued, queue_state``.
+        """
+        return (self.active, self.counters, self.is_active, self.last_observed, self.id_to_index, self.ids,
+                self.queue, self.queued, self.queue_state)  # fmt: skip
+
     @property
     def poses(self) -> FloatArray:
         """Pose estimates, shape (N, 3) (a copy)."""

@@ -26,7 +26,7 @@ import scipy.linalg
 import scipy.sparse
 from numpy.typing import NDArray
 
-from seif_gym.slam.base import INITIAL_LANDMARK_CAPACITY, SlamFilter, symmetrized
+from seif_gym.slam.base import INITIAL_LANDMARK_CAPACITY, InformationForm, SlamFilter, symmetrized
 from seif_gym.slam.models import wrap_angle
 from seif_gym.type_aliases import FloatArray
 
@@ -39,7 +39,7 @@ def _spd_inverse(matrix: FloatArray) -> FloatArray:
     return symmetrized(scipy.linalg.cho_solve(factor, np.eye(len(matrix)), check_finite=False))
 
 
-class EIF(SlamFilter):
+class EIF(SlamFilter, InformationForm):
     r"""Extended information filter SLAM with known correspondences.
 
     Parameters

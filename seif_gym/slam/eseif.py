@@ -43,14 +43,21 @@ default; ``implementation="reference"`` runs the former.
 
 from __future__ import annotations
 
+import abc
 from typing import Any, ClassVar, NamedTuple
 
 import numpy as np
-from numba import njit
 from numpy.typing import NDArray
 
 from seif_gym.slam import _kernels
-from seif_gym.slam.seif import SEIF
+from seif_gym.slam._kernels import (
+    _pose_information,
+    marginalize_robot_block,
+    relocalization_pose_information,
+    select_relocalization_landmarks,
+)
+from seif_gym.slam.information import InformationStore
+from seif_gym.slam.seif import SEIF, CompiledSEIFBackend, ReferenceSEIFBackend, SEIFBackend
 from seif_gym.type_aliases import FloatArray, IntArray
 
 __all__ = [
@@ -111,166 +118,34 @@ def marginalize_robot(omega: FloatArray, xi: FloatArray) -> tuple[FloatArray, Fl
     return omega_marg, xi_marg
 
 
-@njit(cache=True)
-def marginalize_robot_block(omega: FloatArray, xi: FloatArray) -> tuple[FloatArray, FloatArray]:
-    """Fast :func:`marginalize_robot` (Cholesky of ``Omega_xx``, exactly symmetric result)."""
-    size = xi.shape[0]
-    lower = np.linalg.cholesky(np.ascontiguousarray(omega[:3, :3]))
-    # W = L^-1 Omega_x,: and w = L^-1 xi_x by forward substitution; the Schur term is W^T W, W^T w
-    w = np.ascontiguousarray(omega[:3, :]).copy()
-    wx = xi[:3].copy()
-    for a in range(3):
-        for b in range(a):
-            for c in range(size):
-                w[a, c] -= lower[a, b] * w[b, c]
-            wx[a] -= lower[a, b] * wx[b]
-        for c in range(size):
-            w[a, c] /= lower[a, a]
-        wx[a] /= lower[a, a]
-    omega_marg = np.zeros((size, size))
-    xi_marg = np.zeros(size)
-    for r in range(3, size):
-        value = xi[r]
-        for a in range(3):
-            value -= w[a, r] * wx[a]
-        xi_marg[r] = value
-        for c in range(r, size):
-            value = omega[r, c]
-            for a in range(3):
-                value -= w[a, r] * w[a, c]
-            omega_marg[r, c] = value
-            omega_marg[c, r] = value
-    return omega_marg, xi_marg
+# ---------------------------------------------------------------------------
+# Backends: the SEIF's, and the robot's marginalization
+# ---------------------------------------------------------------------------
+class ESEIFBackend(SEIFBackend):
+    """A :class:`~seif_gym.slam.seif.SEIFBackend` that also marginalizes the robot out (step c)."""
+
+    @abc.abstractmethod
+    def marginalize_robot(self, store: InformationStore, block: IntArray) -> None:
+        """:func:`marginalize_robot` on the block of the robot and ``block`` (its linked landmarks)."""
 
 
-@njit(cache=True)
-def relocalization_pose_information(
-    mean: FloatArray, landmark_info: FloatArray, indices: IntArray, noise_cov: FloatArray
-) -> FloatArray:
-    """Pose information ``J_i = H_x^T S_i^-1 H_x`` each measured landmark would give, shape (m, 3, 3).
+class CompiledESEIFBackend(CompiledSEIFBackend, ESEIFBackend):
+    """The ESEIF's steps by the compiled kernels (the default)."""
 
-    ``S_i = Q + H_m P_i H_m^T`` counts the landmark's own uncertainty, with
-    ``P_i = Omega_ii^-1`` its conditional covariance (the constant-time proxy
-    the SEIF also uses; a lower bound of the marginal). ``H_x``, ``H_m`` are the
-    pose and landmark columns of ``H`` (``SEIF.md``, range-bearing sensor) at
-    the current mean.
-    """
-    offsets = np.empty((indices.shape[0], 2))
-    covariances = np.empty((indices.shape[0], 2, 2))
-    for k in range(indices.shape[0]):
-        i = indices[k]
-        offsets[k, 0] = mean[3 + 2 * i] - mean[0]
-        offsets[k, 1] = mean[4 + 2 * i] - mean[1]
-        a, b, c, d = landmark_info[i, 0, 0], landmark_info[i, 0, 1], landmark_info[i, 1, 0], landmark_info[i, 1, 1]
-        det = a * d - b * c
-        covariances[k, 0, 0], covariances[k, 1, 1] = d / det, a / det
-        covariances[k, 0, 1] = covariances[k, 1, 0] = -0.5 * (b + c) / det
-    return _pose_information(offsets, covariances, noise_cov)
+    def marginalize_robot(self, store: InformationStore, block: IntArray) -> None:
+        omega, xi, _ = _kernels.gather(*store.kernel_arrays(), block)
+        omega, xi = marginalize_robot_block(omega, xi)
+        store.reserve_degree(block, len(block))
+        _kernels.scatter(*store.kernel_arrays()[:7], block, omega, xi)
 
 
-@njit(cache=True)
-def _pose_information(offsets: FloatArray, covariances: FloatArray, noise_cov: FloatArray) -> FloatArray:
-    """``J_i = H_x^T (Q + H_m P_i H_m^T)^-1 H_x`` for landmarks at ``offsets`` (m, 2) from the robot.
+class ReferenceESEIFBackend(ReferenceSEIFBackend, ESEIFBackend):
+    """The ESEIF's steps by the plain functions (slow; for checking)."""
 
-    ``covariances`` (m, 2, 2) are the landmarks' ``P_i``; zero for a landmark
-    first seen in this scan, whose only position information is the scan's.
-    """
-    count = offsets.shape[0]
-    out = np.empty((count, 3, 3))
-    q00, q01, q11 = noise_cov[0, 0], noise_cov[0, 1], noise_cov[1, 1]
-    H_x = np.empty((2, 3))
-    for k in range(count):
-        dx, dy = offsets[k, 0], offsets[k, 1]
-        q = dx * dx + dy * dy
-        r = np.sqrt(q)
-        # H = [H_x | H_m] with H_m = -H_x[:, :2]
-        H_x[0, 0], H_x[0, 1], H_x[0, 2] = -dx / r, -dy / r, 0.0
-        H_x[1, 0], H_x[1, 1], H_x[1, 2] = dy / q, -dx / q, -1.0
-        h00, h01, h10, h11 = dx / r, dy / r, -dy / q, dx / q
-        p00, p01, p11 = covariances[k, 0, 0], covariances[k, 0, 1], covariances[k, 1, 1]
-        # S = Q + H_m P H_m^T (symmetric 2 x 2), then S^-1
-        t00, t01 = h00 * p00 + h01 * p01, h00 * p01 + h01 * p11
-        t10, t11 = h10 * p00 + h11 * p01, h10 * p01 + h11 * p11
-        s00 = q00 + t00 * h00 + t01 * h01
-        s01 = q01 + t00 * h10 + t01 * h11
-        s11 = q11 + t10 * h10 + t11 * h11
-        det = s00 * s11 - s01 * s01
-        i00, i01, i11 = s11 / det, -s01 / det, s00 / det
-        for u in range(3):
-            for v in range(3):
-                out[k, u, v] = H_x[0, u] * (i00 * H_x[0, v] + i01 * H_x[1, v]) + H_x[1, u] * (
-                    i01 * H_x[0, v] + i11 * H_x[1, v]
-                )
-    return out
-
-
-@njit(cache=True)
-def _det3(m: FloatArray) -> float:
-    return (
-        m[0, 0] * (m[1, 1] * m[2, 2] - m[1, 2] * m[2, 1])
-        - m[0, 1] * (m[1, 0] * m[2, 2] - m[1, 2] * m[2, 0])
-        + m[0, 2] * (m[1, 0] * m[2, 1] - m[1, 1] * m[2, 0])
-    )
-
-
-@njit(cache=True)
-def select_relocalization_landmarks(pose_information: FloatArray, count: int, rcond: float) -> IntArray:
-    """Pick ``count`` measurements whose summed pose information has the largest determinant.
-
-    Parameters
-    ----------
-    pose_information : ndarray, shape (m, 3, 3)
-        ``J_i`` of each candidate (:func:`relocalization_pose_information`).
-    count : int
-        Measurements to withhold, at least 2 (one range-bearing measurement
-        leaves the rotation about its landmark unobserved).
-    rcond : float
-        Refuse (return an empty array) when the chosen ``J = sum J_i`` has
-        ``lambda_min(J) < rcond lambda_max(J)``.
-
-    Returns
-    -------
-    ndarray of int64
-        Positions in ``pose_information`` of the chosen measurements (best
-        pair first, then greedy additions), or empty.
-
-    Notes
-    -----
-    ``det J`` is the D-optimal criterion: it rewards landmarks that are close,
-    well mapped and spread in bearing (the relocalized pose is well
-    conditioned). The best pair is found exhaustively (``O(m^2)`` for a scan
-    of ``m`` measurements), further ones greedily.
-    """
-    m = pose_information.shape[0]
-    chosen = np.empty(0, dtype=np.int64)
-    if m < 2 or count < 2:
-        return chosen
-    best, first, second = -np.inf, -1, -1
-    for i in range(m):
-        for j in range(i + 1, m):
-            value = _det3(pose_information[i] + pose_information[j])
-            if value > best:
-                best, first, second = value, i, j
-    taken = np.zeros(m, dtype=np.bool_)
-    taken[first] = True
-    taken[second] = True
-    total = pose_information[first] + pose_information[second]
-    chosen = np.empty(min(count, m), dtype=np.int64)
-    chosen[0], chosen[1] = first, second
-    for n in range(2, chosen.shape[0]):
-        best, pick = -np.inf, -1
-        for k in range(m):
-            if not taken[k]:
-                value = _det3(total + pose_information[k])
-                if value > best:
-                    best, pick = value, k
-        taken[pick] = True
-        total = total + pose_information[pick]
-        chosen[n] = pick
-    eigenvalues = np.linalg.eigvalsh(0.5 * (total + total.T))
-    if not eigenvalues[0] > rcond * eigenvalues[2]:
-        return np.empty(0, dtype=np.int64)
-    return chosen
+    def marginalize_robot(self, store: InformationStore, block: IntArray) -> None:
+        omega, xi, _ = store.gather(block)
+        omega, xi = marginalize_robot(omega, xi)
+        store.scatter(block, omega, xi)
 
 
 # ---------------------------------------------------------------------------
@@ -422,6 +297,9 @@ class ESEIF(SEIF):
     """
 
     OPTIONS: ClassVar[dict[str, Any]] = {**SEIF.OPTIONS, "relocalization_landmarks": 2, "split_weight": 0.5}
+    BACKENDS: ClassVar[dict[str, SEIFBackend]] = {"compiled": CompiledESEIFBackend(),
+                                                  "reference": ReferenceESEIFBackend()}  # fmt: skip
+    _backend: ESEIFBackend
     _COUNTERS: ClassVar[tuple[str, ...]] = ("relocalizations", "split_relocalizations", "discarded_measurements")
 
     def _check_options(self, options: dict[str, Any]) -> None:
@@ -535,26 +413,8 @@ class ESEIF(SEIF):
 
     def _marginalize_robot(self) -> None:
         """Step (c): Schur complement over the robot, on the block of the robot and ``Gamma``."""
-        store = self._store
-        block = self._active
-        if self._compiled:
-            omega, xi, _ = _kernels.gather(
-                store.robot_info, store.robot_links, store.landmark_info,
-                store.neighbour_index, store.neighbour_info, store.neighbour_count,
-                store.information_vector, store.mean, store.block_position, block,
-            )  # fmt: skip
-            omega, xi = marginalize_robot_block(omega, xi)
-            store.reserve_degree(block, len(block))
-            _kernels.scatter(
-                store.robot_info, store.robot_links, store.landmark_info,
-                store.neighbour_index, store.neighbour_info, store.neighbour_count,
-                store.information_vector, block, omega, xi,
-            )  # fmt: skip
-        else:
-            omega, xi, _ = store.gather(block)
-            omega, xi = marginalize_robot(omega, xi)
-            store.scatter(block, omega, xi)
-        self._is_active[block] = False
+        self._backend.marginalize_robot(self._store, self._active)
+        self._is_active[self._active] = False
         self._active = np.empty(0, dtype=np.int64)
 
     def _relocalize(self, ranges: FloatArray, bearings: FloatArray, indices: IntArray, weight: float) -> None:

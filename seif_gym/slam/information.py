@@ -147,6 +147,16 @@ class InformationStore:
         return clone
 
     # -- reference gather / scatter ------------------------------------------
+    def kernel_arrays(self) -> tuple[FloatArray, FloatArray, FloatArray, IntArray, FloatArray, IntArray, FloatArray,
+                                     FloatArray, IntArray]:  # fmt: skip
+        """The arrays the compiled kernels of :mod:`seif_gym.slam._kernels` take first, in their order.
+
+        ``robot_info, robot_links, landmark_info, neighbour_index, neighbour_info, neighbour_count,
+        information_vector, mean, block_position`` (the current arrays: growth replaces them).
+        """
+        return (self.robot_info, self.robot_links, self.landmark_info, self.neighbour_index, self.neighbour_info,
+                self.neighbour_count, self.information_vector, self.mean, self.block_position)  # fmt: skip
+
     def find_neighbour(self, i: int, j: int) -> int:
         """Slot of ``j`` in ``i``'s neighbour list, or -1."""
         slots = np.flatnonzero(self.neighbour_index[i, : self.neighbour_count[i]] == j)

@@ -112,9 +112,7 @@ def breadth_first_joint_covariance(
     if targets.size and (targets.min() < 0 or targets.max() >= store.num_landmarks):
         raise ValueError(f"landmark_indices must lie in [0, {store.num_landmarks}), got {targets.tolist()}")
     nodes = breadth_first_nodes(store, np.asarray(filt._active, dtype=np.int64), targets, max_landmarks)
-    omega, _, _ = _kernels.gather(store.robot_info, store.robot_links, store.landmark_info, store.neighbour_index,
-                                  store.neighbour_info, store.neighbour_count, store.information_vector, store.mean,
-                                  store.block_position, nodes)  # fmt: skip
+    omega, _, _ = _kernels.gather(*store.kernel_arrays(), nodes)
     position = {int(i): p for p, i in enumerate(nodes.tolist())}
     rows = np.concatenate([np.arange(3)] + [3 + 2 * position[int(i)] + np.arange(2) for i in targets.tolist()])
     unit = np.zeros((omega.shape[0], len(rows)))

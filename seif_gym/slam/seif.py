@@ -18,13 +18,17 @@ An update either completes or leaves the filter bit-identical: each stage
 saves what it is about to change in a :class:`UpdateJournal` first, and a
 failure anywhere (a block that is not positive definite, say) restores it.
 
-These functions are the *reference path*. :class:`SEIF` runs, by default,
-compiled versions of the same steps from :mod:`seif_gym.slam._kernels`, which
-the tests check equal to these (``implementation="reference"`` runs these).
+These functions are the *reference path*. A :class:`SEIF` runs its steps
+through one backend, chosen once from its ``implementation`` option:
+:class:`CompiledSEIFBackend` (the default: the compiled twins of these
+functions, all in :mod:`seif_gym.slam._kernels`) or
+:class:`ReferenceSEIFBackend` (these functions on gathered blocks); the tests
+check the two equal (``tests/test_kernels.py``, ``tests/test_seif.py``).
 """
 
 from __future__ import annotations
 
+import abc
 from typing import Any, ClassVar
 
 import numpy as np
@@ -34,13 +38,16 @@ import scipy.sparse.linalg
 from numpy.typing import ArrayLike, NDArray
 
 from seif_gym.slam import _kernels
-from seif_gym.slam.base import SlamFilter
+from seif_gym.slam.base import SlamFilter, SparseInformationForm
 from seif_gym.slam.information import InformationStore
 from seif_gym.slam.models import wrap_angle
 from seif_gym.type_aliases import FloatArray, IntArray
 
 __all__ = [
     "SEIF",
+    "SEIFBackend",
+    "CompiledSEIFBackend",
+    "ReferenceSEIFBackend",
     "DENSE_MARGINALS_UP_TO",
     "exact_marginal_covariance",
     "motion_update",
@@ -242,12 +249,8 @@ def exact_marginal_covariance(store: InformationStore, state_indices: IntArray,
     both paths against the inverse of the dense matrix.
     """
     if store.num_landmarks <= dense_up_to:
-        cov = _kernels.exact_marginal(
-            store.robot_info, store.robot_links, store.landmark_info,
-            store.neighbour_index, store.neighbour_info, store.neighbour_count,
-            store.information_vector, store.mean, store.block_position, store.num_landmarks,
-            np.asarray(state_indices, dtype=np.int64),
-        )  # fmt: skip
+        cov = _kernels.exact_marginal(*store.kernel_arrays(), store.num_landmarks,
+                                      np.asarray(state_indices, dtype=np.int64))  # fmt: skip
     else:
         unit = np.zeros((store.state_dim, len(state_indices)))
         unit[state_indices, np.arange(len(state_indices))] = 1.0
@@ -560,9 +563,136 @@ def _rewrap_heading(store: InformationStore, active: IntArray) -> None:
 
 
 # ---------------------------------------------------------------------------
+# Backends: the steps above run on a store, compiled or plain (chosen once per filter)
+# ---------------------------------------------------------------------------
+class SEIFBackend(abc.ABC):
+    """How a SEIF's steps run on its :class:`InformationStore`: one instance per kind, chosen once per filter.
+
+    :class:`CompiledSEIFBackend` calls the kernels of :mod:`seif_gym.slam._kernels` on the store's
+    arrays; :class:`ReferenceSEIFBackend` gathers a dense block, applies this module's reference
+    function and scatters it back. The tests check the two equal (``tests/test_seif.py``).
+    """
+
+    #: The motion update writes the store only after its last computation: a failed one leaves the
+    #: landmark rows untouched, so a step's journal needs only the robot's block.
+    motion_update_writes_last: ClassVar[bool]
+
+    @abc.abstractmethod
+    def motion_update(self, store: InformationStore, active: IntArray, delta: FloatArray, jacobian: FloatArray,
+                      noise: FloatArray) -> None:  # fmt: skip
+        """:func:`motion_update` on the block of the robot and ``active``; ``mean[:3] += delta``."""
+
+    @abc.abstractmethod
+    def measurement_update(self, store: InformationStore, indices: IntArray, ranges: FloatArray,
+                           bearings: FloatArray, measurement_info: FloatArray) -> None:  # fmt: skip
+        """:func:`measurement_update` of these measurements of the landmarks ``indices`` (one ``Q^-1``)."""
+
+    @abc.abstractmethod
+    def sparsify(self, store: InformationStore, block: IntArray, num_kept: int) -> None:
+        """:func:`sparsify` on the block of the robot and ``block`` (the kept landmarks first)."""
+
+    @abc.abstractmethod
+    def recover_mean_wavefront(self, store: InformationStore, queue: RecoveryQueue, active: IntArray,
+                               seeds: IntArray, budget: int, relaxation: float, tolerance: float,
+                               journal: UpdateJournal | None) -> None:  # fmt: skip
+        """:func:`recover_mean_wavefront`, recording in ``journal`` what it changes."""
+
+    @abc.abstractmethod
+    def recover_mean_amortized(self, store: InformationStore, landmarks: IntArray, active: IntArray) -> None:
+        """:func:`recover_mean_amortized` (the caller's journal saved ``landmarks`` already)."""
+
+    @abc.abstractmethod
+    def blanket_covariances(self, store: InformationStore, active: IntArray, is_active: NDArray[np.bool_],
+                            targets: IntArray) -> tuple[FloatArray, FloatArray]:  # fmt: skip
+        """:func:`blanket_covariances` over the robot, ``active`` and ``targets``."""
+
+
+class CompiledSEIFBackend(SEIFBackend):
+    """The SEIF's steps by the compiled kernels of :mod:`seif_gym.slam._kernels` (the default)."""
+
+    motion_update_writes_last = True
+
+    def motion_update(self, store: InformationStore, active: IntArray, delta: FloatArray, jacobian: FloatArray,
+                      noise: FloatArray) -> None:  # fmt: skip
+        store.reserve_degree(active, len(active))
+        _kernels.predict(*store.kernel_arrays(), active, delta, jacobian, noise)
+
+    def measurement_update(self, store: InformationStore, indices: IntArray, ranges: FloatArray,
+                           bearings: FloatArray, measurement_info: FloatArray) -> None:  # fmt: skip
+        _kernels.measurement_update(store.robot_info, store.robot_links, store.landmark_info,
+                                    store.information_vector, store.mean, indices, ranges, bearings,
+                                    measurement_info)  # fmt: skip
+
+    def sparsify(self, store: InformationStore, block: IntArray, num_kept: int) -> None:
+        store.reserve_degree(block, len(block))
+        _kernels.sparsify(*store.kernel_arrays(), block, num_kept)
+
+    def recover_mean_wavefront(self, store: InformationStore, queue: RecoveryQueue, active: IntArray,
+                               seeds: IntArray, budget: int, relaxation: float, tolerance: float,
+                               journal: UpdateJournal | None) -> None:  # fmt: skip
+        # an undo log of every change, sized for the worst case of this call
+        log_size = (len(seeds) + len(active) + budget) * (2 + store.degree) + 1
+        undo = (np.empty(log_size, np.int8), np.empty(log_size, np.int64), np.empty((log_size, 2)),
+                np.zeros(1, np.int64))  # fmt: skip
+        if journal is not None:
+            journal.log_wavefront(queue, undo)
+        _kernels.recover_mean_wavefront(*store.kernel_arrays(), active, seeds, queue.items, queue.queued,
+                                        queue.state, budget, relaxation, tolerance, *undo)  # fmt: skip
+
+    def recover_mean_amortized(self, store: InformationStore, landmarks: IntArray, active: IntArray) -> None:
+        _kernels.recover_mean(*store.kernel_arrays()[:8], landmarks, active)
+
+    def blanket_covariances(self, store: InformationStore, active: IntArray, is_active: NDArray[np.bool_],
+                            targets: IntArray) -> tuple[FloatArray, FloatArray]:  # fmt: skip
+        nodes = _kernels.blanket_nodes(active, targets, store.block_position)
+        return _kernels.blanket_covariances(*store.kernel_arrays(), nodes, targets)
+
+
+class ReferenceSEIFBackend(SEIFBackend):
+    """The SEIF's steps by this module's plain functions on gathered dense blocks (slow; for checking)."""
+
+    motion_update_writes_last = False
+
+    def motion_update(self, store: InformationStore, active: IntArray, delta: FloatArray, jacobian: FloatArray,
+                      noise: FloatArray) -> None:  # fmt: skip
+        omega, xi, mu = store.gather(active)
+        omega, xi, mu = motion_update(omega, xi, mu, delta, jacobian, noise)
+        store.scatter(active, omega, xi)
+        store.mean[:3] = mu[:3]
+
+    def measurement_update(self, store: InformationStore, indices: IntArray, ranges: FloatArray,
+                           bearings: FloatArray, measurement_info: FloatArray) -> None:  # fmt: skip
+        omega, xi, mu = store.gather(indices)
+        omega, xi = measurement_update(omega, xi, mu, ranges, bearings, measurement_info)
+        store.scatter(indices, omega, xi)
+
+    def sparsify(self, store: InformationStore, block: IntArray, num_kept: int) -> None:
+        omega, xi, mu = store.gather(block)
+        omega, xi = sparsify(omega, xi, mu, num_kept)
+        store.scatter(block, omega, xi)
+
+    def recover_mean_wavefront(self, store: InformationStore, queue: RecoveryQueue, active: IntArray,
+                               seeds: IntArray, budget: int, relaxation: float, tolerance: float,
+                               journal: UpdateJournal | None) -> None:  # fmt: skip
+        if journal is not None:  # copies instead of an undo log: this path is for checking, not speed
+            journal.save_mean()
+            journal.save_queue()
+        recover_mean_wavefront(store, queue, active, seeds, budget, relaxation, tolerance)
+
+    def recover_mean_amortized(self, store: InformationStore, landmarks: IntArray, active: IntArray) -> None:
+        recover_mean_amortized(store, landmarks, active)
+
+    def blanket_covariances(self, store: InformationStore, active: IntArray, is_active: NDArray[np.bool_],
+                            targets: IntArray) -> tuple[FloatArray, FloatArray]:  # fmt: skip
+        outside = [i for i in dict.fromkeys(targets.tolist()) if not is_active[i]]
+        nodes = np.concatenate([active, np.array(outside, dtype=np.int64)])
+        return blanket_covariances(store, nodes, targets)
+
+
+# ---------------------------------------------------------------------------
 # The filter
 # ---------------------------------------------------------------------------
-class SEIF(SlamFilter):
+class SEIF(SlamFilter, SparseInformationForm):
     """Sparse Extended Information Filter SLAM with known correspondences.
 
     Parameters
@@ -622,6 +752,9 @@ class SEIF(SlamFilter):
     MEAN_RECOVERIES: ClassVar[tuple[str, ...]] = ("wavefront", "amortized", "exact")
     #: Counters of subclasses that a failed step restores with the rest.
     _COUNTERS: ClassVar[tuple[str, ...]] = ()
+    #: The backend of each ``implementation``.
+    BACKENDS: ClassVar[dict[str, SEIFBackend]] = {"compiled": CompiledSEIFBackend(),
+                                                  "reference": ReferenceSEIFBackend()}  # fmt: skip
 
     def _check_options(self, options: dict[str, Any]) -> None:
         max_active = options["max_active"]
@@ -654,7 +787,7 @@ class SEIF(SlamFilter):
         self.recovery_budget = int(self.options["recovery_budget"])
         self.recovery_relaxation = float(self.options["recovery_relaxation"])
         self.recovery_tolerance = float(self.options["recovery_tolerance"])
-        self._compiled = self.options["implementation"] == "compiled"
+        self._backend = self.BACKENDS[self.options["implementation"]]
         self._store = InformationStore()
         self._store.robot_info[:] = scipy.linalg.cho_solve(scipy.linalg.cho_factor(pose_cov), np.eye(3))
         self._store.robot_info[:] = 0.5 * (self._store.robot_info + self._store.robot_info.T)
@@ -672,9 +805,9 @@ class SEIF(SlamFilter):
 
     # -- step 1 ------------------------------------------------------------------
     def _predict(self, control: FloatArray, dt: float) -> None:
-        # the compiled motion update writes the robot's and its active landmarks' rows only after its last
-        # computation, so the robot's block and the arrays (which may grow) suffice; the plain path saves the rows
-        journal = UpdateJournal(self, None if self._compiled else self._active)
+        # a motion update that writes the robot's and its active landmarks' rows only after its last
+        # computation needs only the robot's block and the arrays (which may grow) saved; others save the rows
+        journal = UpdateJournal(self, None if self._backend.motion_update_writes_last else self._active)
         try:
             self._motion_update(control, dt)
         except BaseException:
@@ -684,19 +817,7 @@ class SEIF(SlamFilter):
     def _motion_update(self, control: FloatArray, dt: float) -> None:
         store = self._store
         delta, jacobian, noise = self._linearize(store.mean[:3], control, dt)
-        if self._compiled:
-            store.reserve_degree(self._active, len(self._active))
-            _kernels.predict(
-                store.robot_info, store.robot_links, store.landmark_info,
-                store.neighbour_index, store.neighbour_info, store.neighbour_count,
-                store.information_vector, store.mean, store.block_position,
-                self._active, delta, jacobian, noise,
-            )  # fmt: skip
-        else:
-            omega, xi, mu = store.gather(self._active)
-            omega, xi, mu = motion_update(omega, xi, mu, delta, jacobian, noise)
-            store.scatter(self._active, omega, xi)
-            store.mean[:3] = mu[:3]
+        self._backend.motion_update(store, self._active, delta, jacobian, noise)
         _rewrap_heading(store, self._active)
 
     # -- steps 2-4 ---------------------------------------------------------------
@@ -757,15 +878,7 @@ class SEIF(SlamFilter):
             groups = [(indices[k : k + 1], ranges[k : k + 1], bearings[k : k + 1], weight * noise_infos[k])
                       for k in range(len(indices))]  # fmt: skip
         for group, group_ranges, group_bearings, measurement_info in groups:
-            if self._compiled:
-                _kernels.measurement_update(
-                    store.robot_info, store.robot_links, store.landmark_info,
-                    store.information_vector, store.mean, group, group_ranges, group_bearings, measurement_info,
-                )  # fmt: skip
-            else:
-                omega, xi, mu = store.gather(group)
-                omega, xi = measurement_update(omega, xi, mu, group_ranges, group_bearings, measurement_info)
-                store.scatter(group, omega, xi)
+            self._backend.measurement_update(store, group, group_ranges, group_bearings, measurement_info)
         self._last_observed[indices] = self._update_count
         newly_active = indices[~self._is_active[indices]]
         if len(newly_active):
@@ -780,38 +893,12 @@ class SEIF(SlamFilter):
                 journal.save_mean()
             recover_mean_exact(store)
         elif self.mean_recovery == "wavefront":
-            seeds = self._passive_batch()
-            if self._compiled:
-                log_size = (len(seeds) + len(self._active) + self.recovery_budget) * (2 + store.degree) + 1
-                undo = (np.empty(log_size, np.int8), np.empty(log_size, np.int64), np.empty((log_size, 2)),
-                        np.zeros(1, np.int64))  # fmt: skip
-                if journal is not None:
-                    journal.log_wavefront(self._queue, undo)
-                queue = self._queue
-                _kernels.recover_mean_wavefront(
-                    store.robot_info, store.robot_links, store.landmark_info,
-                    store.neighbour_index, store.neighbour_info, store.neighbour_count,
-                    store.information_vector, store.mean, store.block_position, self._active, seeds,
-                    queue.items, queue.queued, queue.state, self.recovery_budget, self.recovery_relaxation, self.recovery_tolerance, *undo,
-                )  # fmt: skip
-            else:
-                if journal is not None:  # the plain path (for checking, not speed) saves copies instead of logging
-                    journal.save_mean()
-                    journal.save_queue()
-                recover_mean_wavefront(
-                    store, self._queue, self._active, seeds,
-                    self.recovery_budget, self.recovery_relaxation, self.recovery_tolerance,
-                )  # fmt: skip
+            self._backend.recover_mean_wavefront(store, self._queue, self._active, self._passive_batch(),
+                                                 self.recovery_budget, self.recovery_relaxation,
+                                                 self.recovery_tolerance, journal)  # fmt: skip
         else:
             landmarks = np.concatenate([self._passive_batch(), self._active])  # saved when the journal opened
-            if self._compiled:
-                _kernels.recover_mean(
-                    store.robot_info, store.robot_links, store.landmark_info,
-                    store.neighbour_index, store.neighbour_info, store.neighbour_count,
-                    store.information_vector, store.mean, landmarks, self._active,
-                )  # fmt: skip
-            else:
-                recover_mean_amortized(store, landmarks, self._active)
+            self._backend.recover_mean_amortized(store, landmarks, self._active)
         _rewrap_heading(store, self._active)
 
     def _passive_batch(self) -> IntArray:
@@ -840,18 +927,7 @@ class SEIF(SlamFilter):
         deactivated = self._active[remove]
         kept = self._active[~remove]
         block = np.concatenate([kept, deactivated])
-        store = self._store
-        if self._compiled:
-            store.reserve_degree(block, len(block))
-            _kernels.sparsify(
-                store.robot_info, store.robot_links, store.landmark_info,
-                store.neighbour_index, store.neighbour_info, store.neighbour_count,
-                store.information_vector, store.mean, store.block_position, block, len(kept),
-            )  # fmt: skip
-        else:
-            omega, xi, mu = store.gather(block)
-            omega, xi = sparsify(omega, xi, mu, len(kept))
-            store.scatter(block, omega, xi)
+        self._backend.sparsify(self._store, block, len(kept))
         self._active = kept
         self._is_active[deactivated] = False
 
@@ -891,14 +967,7 @@ class SEIF(SlamFilter):
         everything = np.arange(self.num_landmarks, dtype=np.int64)
         store = self._store
         for _ in range(int(sweeps)):
-            if self._compiled:
-                _kernels.recover_mean(
-                    store.robot_info, store.robot_links, store.landmark_info,
-                    store.neighbour_index, store.neighbour_info, store.neighbour_count,
-                    store.information_vector, store.mean, everything, self._active,
-                )  # fmt: skip
-            else:
-                recover_mean_amortized(store, everything, self._active)
+            self._backend.recover_mean_amortized(store, everything, self._active)
             _rewrap_heading(store, self._active)
 
     def local_marginals(self, landmark_indices: ArrayLike) -> tuple[FloatArray, FloatArray]:
@@ -913,17 +982,7 @@ class SEIF(SlamFilter):
 
     def local_marginals_trusted(self, indices: IntArray) -> tuple[FloatArray, FloatArray]:
         """:meth:`local_marginals` without input checks (valid int64 state orders)."""
-        store = self._store
-        if self._compiled:
-            nodes = _kernels.blanket_nodes(self._active, indices, store.block_position)
-            return _kernels.blanket_covariances(
-                store.robot_info, store.robot_links, store.landmark_info,
-                store.neighbour_index, store.neighbour_info, store.neighbour_count,
-                store.information_vector, store.mean, store.block_position, nodes, indices,
-            )  # fmt: skip
-        outside = [i for i in dict.fromkeys(indices.tolist()) if not self._is_active[i]]
-        nodes = np.concatenate([self._active, np.array(outside, dtype=np.int64)])
-        return blanket_covariances(store, nodes, indices)
+        return self._backend.blanket_covariances(self._store, self._active, self._is_active, indices)
 
     def local_joint_covariance(self, landmark_indices: ArrayLike, neighbours: bool | int = True) -> FloatArray:
         """Joint covariance of the pose and the landmarks at ``landmark_indices``, in constant time.
@@ -947,12 +1006,7 @@ class SEIF(SlamFilter):
             limit = int(neighbours)
         else:
             raise ValueError(f"neighbours must be a bool or a non-negative int, got {neighbours!r}")
-        store = self._store
-        return _kernels.blanket_joint_covariance(
-            store.robot_info, store.robot_links, store.landmark_info,
-            store.neighbour_index, store.neighbour_info, store.neighbour_count,
-            store.information_vector, store.mean, store.block_position, self._active, indices, limit,
-        )  # fmt: skip
+        return _kernels.blanket_joint_covariance(*self._store.kernel_arrays(), self._active, indices, limit)
 
     def landmark_std(self) -> FloatArray:
         """``sqrt(trace(Omega_ii^-1))`` per landmark: the conditional uncertainty, in O(n) without a solve."""

@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from seif_gym.slam import SEIF
-from seif_gym.slam.batched import BatchedSEIF
+from seif_gym.slam import ESEIF, SEIF
+from seif_gym.slam.batched import BatchedESEIF, BatchedSEIF
 from seif_gym.slam.scenarios import FIDELITY_SCENARIOS, make_loop_run
 
 
@@ -37,15 +37,26 @@ def _assert_same(batch: BatchedSEIF, e: int, filt: SEIF, step: int) -> None:
     np.testing.assert_array_equal(batch.queue_state[e, 1], filt._queue.state[1], err_msg=where)
 
 
-@pytest.mark.parametrize("scenario, max_active", [("circle", 8), ("rectangle-narrow", 4), ("figure8-sparse", 16)])
-def test_batched_seif_equals_seif_objects_bit_for_bit(scenario, max_active):
+@pytest.mark.parametrize(
+    "batch_class, scenario, max_active",
+    [
+        (BatchedSEIF, "circle", 8),
+        (BatchedSEIF, "rectangle-narrow", 4),
+        (BatchedSEIF, "figure8-sparse", 16),
+        # the ESEIF: relocalizations (split ones at k = 2) and measurements a full bound discards
+        (BatchedESEIF, "circle", 2),
+        (BatchedESEIF, "rectangle-narrow", 4),
+        (BatchedESEIF, "figure8-sparse", 8),
+    ],
+)
+def test_batched_filters_equal_filter_objects_bit_for_bit(batch_class, scenario, max_active):
     seeds = [0, 1, 2]
     runs = [make_loop_run(FIDELITY_SCENARIOS[scenario], seed) for seed in seeds]
     motion, sensor = runs[0][0], runs[0][1]
     runs = [run for _, _, run in runs]
     capacity = max(len(run.landmarks) for run in runs)
-    batch = BatchedSEIF(len(runs), capacity, motion, sensor, max_active=max_active)
-    filters = [SEIF(motion, sensor, run.initial_pose, max_active=max_active) for run in runs]
+    batch = batch_class(len(runs), capacity, motion, sensor, max_active=max_active)
+    filters = [batch.FILTER(motion, sensor, run.initial_pose, max_active=max_active) for run in runs]
     for e, run in enumerate(runs):
         batch.reset(e, run.initial_pose)
         _assert_same(batch, e, filters[e], -1)
@@ -66,6 +77,11 @@ def test_batched_seif_equals_seif_objects_bit_for_bit(scenario, max_active):
         batch.update(ranges, bearings, ids, counts)
         for e, filt in enumerate(filters):
             _assert_same(batch, e, filt, t)
+            if isinstance(filt, ESEIF):
+                counters = (filt.relocalizations, filt.split_relocalizations, filt.discarded_measurements)
+                assert tuple(batch.eseif_counters[e]) == counters, (e, t)
+    if batch_class is BatchedESEIF:
+        assert batch.eseif_counters[:, 0].min() > 0  # every filter relocalized
 
 
 def test_batched_seif_checks_its_inputs_before_any_filter_moves():
@@ -108,3 +124,10 @@ def test_batched_seif_refuses_filters_it_cannot_reproduce():
         batch.load(0, SEIF(motion, sensor, run.initial_pose, max_active=4))
     with pytest.raises(TypeError, match="SEIF"):
         batch.load(0, object())
+    with pytest.raises(TypeError, match="SEIF"):
+        batch.load(0, ESEIF(motion, sensor, run.initial_pose))  # an ESEIF goes to a BatchedESEIF
+    eseifs = BatchedESEIF(1, 10, motion, sensor, max_active=4)
+    with pytest.raises(ValueError, match="options"):
+        eseifs.load(0, ESEIF(motion, sensor, run.initial_pose, max_active=4, split_weight=0.3))
+    with pytest.raises(ValueError, match="split_weight"):
+        BatchedESEIF(1, 10, motion, sensor, split_weight=1.5)

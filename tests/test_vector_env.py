@@ -40,17 +40,22 @@ def _assert_equal(a, b, where: str) -> None:
 
 
 @pytest.mark.parametrize(
-    "mode, threads, num_envs",
+    "mode, threads, num_envs, filter_kwargs",
     [
-        (AutoresetMode.NEXT_STEP, 1, 3),
-        (AutoresetMode.SAME_STEP, 1, 3),
-        (AutoresetMode.NEXT_STEP, numba.config.NUMBA_NUM_THREADS, 3),  # the parallel loop
-        (AutoresetMode.SAME_STEP, numba.config.NUMBA_NUM_THREADS, 40),  # envs shared out over the threads
+        (AutoresetMode.NEXT_STEP, 1, 3, {}),
+        (AutoresetMode.SAME_STEP, 1, 3, {}),
+        (AutoresetMode.NEXT_STEP, numba.config.NUMBA_NUM_THREADS, 3, {}),  # the parallel loop
+        (AutoresetMode.SAME_STEP, numba.config.NUMBA_NUM_THREADS, 40, {}),  # envs shared out over the threads
+        # the batched ESEIF, relocalizing often (a bound of 3), on one thread and on the parallel loop
+        (AutoresetMode.NEXT_STEP, 1, 3, {"filter": "eseif", "max_active": 3}),
+        (AutoresetMode.SAME_STEP, numba.config.NUMBA_NUM_THREADS, 4, {"filter": "eseif", "max_active": 3}),
     ],
+    ids=["next", "same", "next-threads", "same-threads-40", "eseif-next", "eseif-same-threads"],
 )
-def test_vector_env_equals_sync_vector_env(mode, threads, num_envs):
+def test_vector_env_equals_sync_vector_env(mode, threads, num_envs, filter_kwargs):
     steps, limit = 120, 30
-    kwargs = {"divergence_threshold": 0.06}  # some episodes end by divergence, the others by the time limit
+    # some episodes end by divergence, the others by the time limit
+    kwargs = {"divergence_threshold": 0.06, **filter_kwargs}
     native = SeifExploreVectorEnv(num_envs, max_episode_steps=limit, autoreset_mode=mode, num_threads=threads, **kwargs)
     assert native.backend == "compiled" and native.metadata["autoreset_mode"] == mode
     assert native.num_threads == threads
@@ -62,6 +67,7 @@ def test_vector_env_equals_sync_vector_env(mode, threads, num_envs):
     _assert_equal(infos, expected_infos, "reset info")
     rng = np.random.default_rng(3)
     ended = {"terminated": 0, "truncated": 0}
+    relocalized = 0
     for t in range(steps):
         actions = rng.uniform(-1.0, 1.0, size=(num_envs, 2))
         got = native.step(actions)
@@ -70,7 +76,11 @@ def test_vector_env_equals_sync_vector_env(mode, threads, num_envs):
             _assert_equal(a, b, f"step {t} {name}")
         ended["terminated"] += int(got[2].sum())
         ended["truncated"] += int(got[3].sum())
+        if filter_kwargs:
+            relocalized = max(relocalized, int(native._filters.eseif_counters[:, 0].sum()))
     assert ended["terminated"] > 0 and ended["truncated"] > 0  # both ways of ending (and their resets) exercised
+    if filter_kwargs:
+        assert relocalized > 0  # the ESEIF's relocalizations exercised
     native.close()
     reference.close()
 

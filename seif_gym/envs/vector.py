@@ -6,15 +6,16 @@ spends most of its ~100 µs in some two hundred small Python calls around a
 looping over the envs (with ``num_threads > 1``, one parallel loop on numba's threads:
 :mod:`seif_gym.threads`): the worlds
 (:class:`~seif_gym.world.BatchedWorld`), the
-SEIFs (:class:`~seif_gym.slam.batched.BatchedSEIF`), the observations
+SEIFs or ESEIFs (:class:`~seif_gym.slam.batched.BatchedSEIF`, ``BatchedESEIF``), the observations
 (:func:`~seif_gym.observation.encode_many`) and the rewards and infos
 (:func:`_score_many`). No per-env Python object takes part in a step; an
 episode's start (``reset``, and autoreset) runs the single env's own reset
 and loads its state into the arrays, so the two cannot drift apart.
 
-Supported in this compiled form: ``filter="seif"`` (wavefront recovery),
-``data_association="known"``, ``reward="map_error"``, Thrun's motion model
-and a constant range noise (the defaults of every registered ``-v1`` id). Any other configuration runs as a
+Supported in this compiled form: ``filter="seif"`` or ``"eseif"`` (wavefront
+recovery), ``data_association="known"``, ``reward="map_error"``, Thrun's motion
+model and a constant range noise (the defaults of every registered ``-v1`` id,
+and their ESEIF variant). Any other configuration runs as a
 :class:`gymnasium.vector.SyncVectorEnv` of single envs (``backend ==
 "sync"``), with the same interface.
 
@@ -47,7 +48,7 @@ from seif_gym.envs.explore import Measurements, SeifExploreEnv
 from seif_gym.metrics import map_error_kernel, nees_kernel
 from seif_gym.observation import encode_env, encode_many
 from seif_gym.slam import _kernels
-from seif_gym.slam.batched import BatchedSEIF
+from seif_gym.slam.batched import BatchedESEIF, BatchedSEIF
 from seif_gym.slam.models import VelocityMotionModel, wrap_angle
 from seif_gym.slam.seif import DENSE_MARGINALS_UP_TO, SEIF, exact_marginal_covariance
 from seif_gym.threads import numba_threads
@@ -119,8 +120,9 @@ def _filter_and_score_parallel(
     block_position: IntArray, active: IntArray, counters: IntArray, is_active: BoolArray, last_observed: IntArray,
     id_to_index: IntArray, ids: IntArray, queue: IntArray, queued: BoolArray, queue_state: IntArray,
     controls: FloatArray, dt: float, alphas: FloatArray, floor: float, ranges: FloatArray, bearings: FloatArray,
-    measured: IntArray, measured_count: IntArray, noise_info: FloatArray, max_active: int, recovery_landmarks: int,
-    budget: int, relaxation: float, tolerance: float,
+    measured: IntArray, measured_count: IntArray, noise_info: FloatArray, noise_cov: FloatArray, max_active: int,
+    relocalization_landmarks: int, split_weight: float, rcond: float, recovery_landmarks: int, budget: int,
+    relaxation: float, tolerance: float, eseif_counters: IntArray,
     coverage: UInt8Array, resolution: float, half_arena: float, max_range: float, half_fov: float, map_size: int,
     map_extent: float, nearest_landmarks: int, diagonal: float, std_scale: float, pose_out: Float32Array,
     landmarks_out: Float32Array, mask_out: Float32Array, map_out: UInt8Array, blanket_covariances: FloatArray,
@@ -133,91 +135,36 @@ def _filter_and_score_parallel(
     Per env exactly the kernels, in the order, that the one-thread path calls for all envs in turn
     (``BatchedSEIF.predict`` and ``update_trusted``, :func:`~seif_gym.observation.encode_many`,
     :func:`_score_many`): the envs are independent, so the results are the same bits.
+    ``relocalization_landmarks > 0`` runs the ESEIF's update (``BatchedESEIF``), 0 the SEIF's.
     """
     active_count = counters[:, 1].copy()
     for e in prange(mean.shape[0]):
-        _kernels.seif_predict_env(
-            e,
-            robot_info,
-            robot_links,
-            landmark_info,
-            neighbour_index,
-            neighbour_info,
-            neighbour_count,
-            information_vector,
-            mean,
-            block_position,
-            active,
-            active_count,
-            controls,
-            dt,
-            alphas,
-            floor,
-        )
-        _kernels.seif_update_env(
-            e,
-            robot_info,
-            robot_links,
-            landmark_info,
-            neighbour_index,
-            neighbour_info,
-            neighbour_count,
-            information_vector,
-            mean,
-            block_position,
-            active,
-            counters,
-            is_active,
-            last_observed,
-            id_to_index,
-            ids,
-            queue,
-            queued,
-            queue_state,
-            ranges,
-            bearings,
-            measured,
-            measured_count,
-            noise_info,
-            max_active,
-            recovery_landmarks,
-            budget,
-            relaxation,
-            tolerance,
-        )
-        encode_env(
-            e,
-            coverage,
-            resolution,
-            half_arena,
-            max_range,
-            half_fov,
-            map_size,
-            map_extent,
-            nearest_landmarks,
-            diagonal,
-            std_scale,
-            robot_info,
-            robot_links,
-            landmark_info,
-            neighbour_index,
-            neighbour_info,
-            neighbour_count,
-            information_vector,
-            mean,
-            block_position,
-            active,
-            counters,
-            pose_out,
-            landmarks_out,
-            mask_out,
-            map_out,
-            blanket_covariances,
-        )
+        # fmt: off
+        _kernels.seif_predict_env(e, robot_info, robot_links, landmark_info, neighbour_index, neighbour_info,
+                                  neighbour_count, information_vector, mean, block_position, active, active_count,
+                                  controls, dt, alphas, floor)
+        if relocalization_landmarks > 0:
+            _kernels.eseif_update_env(e, robot_info, robot_links, landmark_info, neighbour_index, neighbour_info,
+                                      neighbour_count, information_vector, mean, block_position, active, counters,
+                                      is_active, last_observed, id_to_index, ids, queue, queued, queue_state, ranges,
+                                      bearings, measured, measured_count, noise_info, noise_cov, max_active,
+                                      relocalization_landmarks, split_weight, rcond, recovery_landmarks, budget,
+                                      relaxation, tolerance, eseif_counters)
+        else:
+            _kernels.seif_update_env(e, robot_info, robot_links, landmark_info, neighbour_index, neighbour_info,
+                                     neighbour_count, information_vector, mean, block_position, active, counters,
+                                     is_active, last_observed, id_to_index, ids, queue, queued, queue_state, ranges,
+                                     bearings, measured, measured_count, noise_info, max_active, recovery_landmarks,
+                                     budget, relaxation, tolerance)
+        encode_env(e, coverage, resolution, half_arena, max_range, half_fov, map_size, map_extent, nearest_landmarks,
+                   diagonal, std_scale, robot_info, robot_links, landmark_info, neighbour_index, neighbour_info,
+                   neighbour_count, information_vector, mean, block_position, active, counters, pose_out,
+                   landmarks_out, mask_out, map_out, blanket_covariances)
         _score_env(e, true_poses, truth, mean, counters, ids, robot_info, robot_links, landmark_info, neighbour_index,
                    neighbour_info, neighbour_count, information_vector, block_position, blanket_covariances, d_cap,
                    previous_error, wall, wall_penalty, divergence_threshold, dense_up_to, reward, map_error,
-                   pose_error, diverged, pose_nees, pose_nees_blanket)  # fmt: skip
+                   pose_error, diverged, pose_nees, pose_nees_blanket)
+        # fmt: on
 
 
 def _same(env: gym.Env) -> gym.Env:
@@ -291,7 +238,7 @@ class SeifExploreVectorEnv(VectorEnv):
         ]
         template = self.envs[0]
         config = template.filter_config
-        compiled = (config.filter == "seif" and config.data_association == "known" and config.mean_recovery == "wavefront"
+        compiled = (config.filter in ("seif", "eseif") and config.data_association == "known" and config.mean_recovery == "wavefront"
                     and template.reward_config.reward == "map_error" and not template.measure_time
                     and config.innovation_gate is None and isinstance(template.motion, VelocityMotionModel)
                     and template.world_config.arena_extent is None and template.sensor_config.range_error_time is None
@@ -312,8 +259,9 @@ class SeifExploreVectorEnv(VectorEnv):
         motion = template.motion
         assert isinstance(motion, VelocityMotionModel)  # the compiled kernels are Thrun's model (checked above)
         self._world = BatchedWorld(n, template.world_config, motion, template.sensor)
-        self._filters = BatchedSEIF(n, template.world_config.num_landmarks, motion, template.sensor,
-                                    max_active=config.max_active)  # fmt: skip
+        batch = BatchedESEIF if config.filter == "eseif" else BatchedSEIF
+        self._filters = batch(n, template.world_config.num_landmarks, motion, template.sensor,
+                              max_active=config.max_active)  # fmt: skip
         cells = template.encoder.coverage.shape[0]
         self._coverage = np.zeros((n, cells, cells), dtype=np.uint8)
         self._truth = np.zeros((n, template.world_config.num_landmarks, 2))
@@ -417,9 +365,7 @@ class SeifExploreVectorEnv(VectorEnv):
             with numba_threads(self.num_threads):
                 _filter_and_score_parallel(
                     *filters.kernel_arrays(), *filters.bookkeeping_arrays(), executed, dt,
-                    filters._alphas, filters._floor, ranges, bearings, ids, counts, filters._noise_info,
-                    filters.max_active, filters.recovery_landmarks, filters.recovery_budget,
-                    filters.recovery_relaxation, filters.recovery_tolerance,
+                    filters._alphas, filters._floor, ranges, bearings, ids, counts, *filters.update_arguments(),
                     self._coverage, config.coverage_resolution, template.encoder.half_arena, sensor.max_range,
                     half_fov, config.map_size, config.map_extent, config.nearest_landmarks, diagonal,
                     config.std_scale, obs["pose"], obs["landmarks"], obs["landmarks_mask"], obs["belief_map"],

@@ -1122,3 +1122,234 @@ def select_relocalization_landmarks(pose_information: FloatArray, count: int, rc
     if not eigenvalues[0] > rcond * eigenvalues[2]:
         return np.empty(0, dtype=np.int64)
     return chosen
+
+
+# -- many ESEIFs in one call (seif_gym.slam.batched.BatchedESEIF) ---------------------------------------------------
+@njit(cache=True)
+def _incorporate_one(robot_info, robot_links, landmark_info, information_vector, mean, active, counters, is_active,
+                     last_observed, indices, ranges, bearings, noise_info):  # fmt: skip
+    """``SEIF._incorporate``: the measurement update, then the landmarks observed join the active set."""
+    if indices.shape[0] == 0:
+        return
+    measurement_update(robot_info, robot_links, landmark_info, information_vector, mean, indices, ranges, bearings,
+                       noise_info)  # fmt: skip
+    count = counters[1]
+    for k in range(indices.shape[0]):
+        i = indices[k]
+        last_observed[i] = counters[2]
+        if not is_active[i]:
+            active[count] = i
+            count += 1
+            is_active[i] = True
+    counters[1] = count
+
+
+@njit(cache=True)
+def _recover_one(robot_info, robot_links, landmark_info, neighbour_index, neighbour_info, neighbour_count,
+                 information_vector, mean, block_position, active, counters, is_active, queue, queued, queue_state,
+                 recovery_landmarks, budget, relaxation, tolerance):  # fmt: skip
+    """``SEIF._recover_mean`` (wavefront): the next passive landmarks in round robin, the robot block, the queue."""
+    n = counters[0]
+    batch = min(recovery_landmarks, n)
+    seeds = np.empty(batch, dtype=np.int64)
+    s = 0
+    for k in range(batch):
+        j = (counters[3] + k) % n
+        if not is_active[j]:
+            seeds[s] = j
+            s += 1
+    if batch > 0:
+        counters[3] = (counters[3] + batch) % n
+    act = active[: counters[1]]
+    log_size = (s + act.shape[0] + budget) * (2 + neighbour_index.shape[1]) + 1
+    recover_mean_wavefront(robot_info, robot_links, landmark_info, neighbour_index, neighbour_info, neighbour_count,
+                           information_vector, mean, block_position, act, seeds[:s], queue, queued, queue_state,
+                           budget, relaxation, tolerance, np.empty(log_size, np.int8), np.empty(log_size, np.int64),
+                           np.empty((log_size, 2)), np.zeros(1, np.int64))  # fmt: skip
+    rewrap_heading(robot_info, robot_links, information_vector, mean, act)
+
+
+@njit(cache=True)
+def _eseif_plan(mean, landmark_info, active_count, is_active, id_to_index, ranges, bearings, measured, noise_cov,
+                max_active, relocalization_landmarks, rcond):  # fmt: skip
+    """``ESEIF._plan_update`` as ``(withheld, split, kept)``.
+
+    ``withheld``: positions of ``z_beta`` (empty: an ordinary update); ``split``: whether the
+    relocalization is a split one; ``kept``: the measurements kept (all but those a full bound discards).
+    """
+    m = measured.shape[0]
+    kept = np.ones(m, dtype=np.bool_)
+    none = np.empty(0, dtype=np.int64)
+    if max_active < 0 or m == 0:
+        return none, False, kept
+    indices = np.empty(m, dtype=np.int64)
+    mapped = np.zeros(m, dtype=np.bool_)
+    active = np.zeros(m, dtype=np.bool_)
+    joining = 0
+    for k in range(m):
+        indices[k] = id_to_index[measured[k]]
+        mapped[k] = indices[k] >= 0
+        if mapped[k]:
+            active[k] = is_active[indices[k]]
+        if not active[k]:
+            joining += 1
+    if active_count + joining <= max_active:
+        return none, False, kept
+    candidates = np.flatnonzero(mapped)
+    information = np.empty((m, 3, 3))
+    mapped_information = relocalization_pose_information(mean, landmark_info, indices[candidates], noise_cov)
+    for c in range(candidates.shape[0]):
+        information[candidates[c]] = mapped_information[c]
+    new = np.flatnonzero(~mapped)
+    offsets = np.empty((new.shape[0], 2))
+    for c in range(new.shape[0]):
+        heading = mean[2] + bearings[new[c]]
+        offsets[c, 0] = ranges[new[c]] * np.cos(heading)
+        offsets[c, 1] = ranges[new[c]] * np.sin(heading)
+    new_information = _pose_information(offsets, np.zeros((new.shape[0], 2, 2)), noise_cov)
+    for c in range(new.shape[0]):
+        information[new[c]] = new_information[c]
+    if candidates.shape[0] >= 2:  # Walter et al.'s relocalization
+        chosen = select_relocalization_landmarks(information[candidates], relocalization_landmarks, rcond)
+        if chosen.shape[0] > 0:
+            return candidates[chosen], False, kept
+    chosen = select_relocalization_landmarks(information, relocalization_landmarks, rcond)
+    if chosen.shape[0] > 0:  # split relocalization
+        return np.sort(chosen), True, kept
+    # no relocalization possible: keep what fits in the bound, mapped landmarks first, then the nearest
+    room = max_active - active_count
+    others = np.flatnonzero(~active)
+    order = np.empty(others.shape[0], dtype=np.int64)
+    for c in range(others.shape[0]):  # a stable insertion sort on (not mapped, range), as np.lexsort
+        pos = c
+        key_new, key_range = not mapped[others[c]], ranges[others[c]]
+        while pos > 0:
+            prev = others[order[pos - 1]]
+            prev_new = not mapped[prev]
+            if prev_new > key_new or (prev_new == key_new and ranges[prev] > key_range):
+                order[pos] = order[pos - 1]
+                pos -= 1
+            else:
+                break
+        order[pos] = c
+    for c in range(others.shape[0]):
+        kept[others[c]] = active[others[c]]
+    for c in range(min(room, others.shape[0])):
+        kept[others[order[c]]] = True
+    return none, False, kept
+
+
+@njit(cache=True)
+def eseif_update_one(robot_info, robot_links, landmark_info, neighbour_index, neighbour_info, neighbour_count,
+                     information_vector, mean, block_position, active, counters, is_active, last_observed,
+                     id_to_index, ids, queue, queued, queue_state, ranges, bearings, measured, noise_info, noise_cov,
+                     max_active, relocalization_landmarks, split_weight, rcond, recovery_landmarks, budget, relaxation,
+                     tolerance, eseif_counters):  # fmt: skip
+    """``ESEIF.update_trusted`` (known ids, wavefront recovery) of one filter of a batch.
+
+    ``counters`` as for :func:`seif_update_one`; ``eseif_counters = [relocalizations, split relocalizations,
+    discarded measurements]`` (updated in place). The same kernels in the same order as the ESEIF's
+    compiled backend.
+    """
+    withheld, split, kept = _eseif_plan(mean, landmark_info, counters[1], is_active, id_to_index, ranges, bearings,
+                                        measured, noise_cov, max_active, relocalization_landmarks, rcond)  # fmt: skip
+    m = 0
+    for k in range(kept.shape[0]):
+        if kept[k]:
+            m += 1
+    eseif_counters[2] += kept.shape[0] - m
+    use = np.flatnonzero(kept)
+    z_range = ranges[use]
+    z_bearing = bearings[use]
+    z_id = measured[use]
+    # ids to state orders; a new landmark enters at the inverse sensor model's position (SEIF.md, sensor)
+    n = counters[0]
+    indices = np.empty(m, dtype=np.int64)
+    x = mean[0]
+    y = mean[1]
+    theta = mean[2]
+    for k in range(m):
+        index = id_to_index[z_id[k]]
+        if index < 0:
+            index = n
+            n += 1
+            id_to_index[z_id[k]] = index
+            ids[index] = z_id[k]
+            angle = z_bearing[k] + theta
+            mean[3 + 2 * index] = x + z_range[k] * np.cos(angle)
+            mean[4 + 2 * index] = y + z_range[k] * np.sin(angle)
+        indices[k] = index
+    counters[0] = n
+    counters[2] += 1
+    if withheld.shape[0] == 0:
+        _incorporate_one(robot_info, robot_links, landmark_info, information_vector, mean, active, counters,
+                         is_active, last_observed, indices, z_range, z_bearing, noise_info)  # fmt: skip
+        _recover_one(robot_info, robot_links, landmark_info, neighbour_index, neighbour_info, neighbour_count,
+                     information_vector, mean, block_position, active, counters, is_active, queue, queued,
+                     queue_state, recovery_landmarks, budget, relaxation, tolerance)  # fmt: skip
+        return
+    alpha = np.ones(m, dtype=np.bool_)
+    alpha[withheld] = False
+    rest = np.flatnonzero(alpha)
+    _incorporate_one(robot_info, robot_links, landmark_info, information_vector, mean, active, counters, is_active,
+                     last_observed, indices[rest], z_range[rest], z_bearing[rest], noise_info)  # (b)  # fmt: skip
+    if split:
+        _incorporate_one(robot_info, robot_links, landmark_info, information_vector, mean, active, counters,
+                         is_active, last_observed, indices[withheld], z_range[withheld], z_bearing[withheld],
+                         split_weight * noise_info)  # fmt: skip
+    _recover_one(robot_info, robot_links, landmark_info, neighbour_index, neighbour_info, neighbour_count,
+                 information_vector, mean, block_position, active, counters, is_active, queue, queued, queue_state,
+                 recovery_landmarks, budget, relaxation, tolerance)  # fmt: skip
+    # (c) the robot marginalized out of the block of the robot and its active landmarks
+    block = active[: counters[1]].copy()
+    omega, xi, _ = gather(robot_info, robot_links, landmark_info, neighbour_index, neighbour_info, neighbour_count,
+                          information_vector, mean, block_position, block)  # fmt: skip
+    omega, xi = marginalize_robot_block(omega, xi)
+    scatter(robot_info, robot_links, landmark_info, neighbour_index, neighbour_info, neighbour_count,
+            information_vector, block, omega, xi)  # fmt: skip
+    for p in range(block.shape[0]):
+        is_active[block[p]] = False
+    counters[1] = 0
+    # (d) relocalized by z_beta
+    weight = 1.0 - split_weight if split else 1.0
+    relocalization_info = noise_info if weight == 1.0 else weight * noise_info
+    _incorporate_one(robot_info, robot_links, landmark_info, information_vector, mean, active, counters, is_active,
+                     last_observed, indices[withheld], z_range[withheld], z_bearing[withheld],
+                     relocalization_info)  # fmt: skip
+    _recover_one(robot_info, robot_links, landmark_info, neighbour_index, neighbour_info, neighbour_count,
+                 information_vector, mean, block_position, active, counters, is_active, queue, queued, queue_state,
+                 recovery_landmarks, budget, relaxation, tolerance)  # fmt: skip
+    eseif_counters[0] += 1
+    if split:
+        eseif_counters[1] += 1
+
+
+@njit(cache=True)
+def eseif_update_env(e, robot_info, robot_links, landmark_info, neighbour_index, neighbour_info, neighbour_count,
+                     information_vector, mean, block_position, active, counters, is_active, last_observed,
+                     id_to_index, ids, queue, queued, queue_state, ranges, bearings, measured, measured_count,
+                     noise_info, noise_cov, max_active, relocalization_landmarks, split_weight, rcond,
+                     recovery_landmarks, budget, relaxation, tolerance, eseif_counters):  # fmt: skip
+    """:func:`eseif_update_one` of filter ``e`` of a batch, with its first ``measured_count[e]`` measurements."""
+    m = measured_count[e]
+    eseif_update_one(robot_info[e], robot_links[e], landmark_info[e], neighbour_index[e], neighbour_info[e],
+                     neighbour_count[e], information_vector[e], mean[e], block_position[e], active[e], counters[e],
+                     is_active[e], last_observed[e], id_to_index[e], ids[e], queue[e], queued[e], queue_state[e],
+                     ranges[e, :m], bearings[e, :m], measured[e, :m], noise_info, noise_cov, max_active,
+                     relocalization_landmarks, split_weight, rcond, recovery_landmarks, budget, relaxation, tolerance,
+                     eseif_counters[e])  # fmt: skip
+
+
+@njit(cache=True)
+def eseif_update_many(robot_info, robot_links, landmark_info, neighbour_index, neighbour_info, neighbour_count,
+                      information_vector, mean, block_position, active, counters, is_active, last_observed,
+                      id_to_index, ids, queue, queued, queue_state, ranges, bearings, measured, measured_count,
+                      noise_info, noise_cov, max_active, relocalization_landmarks, split_weight, rcond,
+                      recovery_landmarks, budget, relaxation, tolerance, eseif_counters):  # fmt: skip
+    """:func:`eseif_update_env` of every filter of a batch, one after another."""
+    for e in range(measured_count.shape[0]):
+        eseif_update_env(e, robot_info, robot_links, landmark_info, neighbour_index, neighbour_info, neighbour_count,
+                         information_vector, mean, block_position, active, counters, is_active, last_observed,
+                         id_to_index, ids, queue, queued, queue_state, ranges, bearings, measured, measured_count,
+                         noise_info, noise_cov, max_active, relocalization_landmarks, split_weight, rcond,
+                         recovery_landmarks, budget, relaxation, tolerance, eseif_counters)  # fmt: skip

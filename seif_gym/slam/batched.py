@@ -26,6 +26,8 @@ update (section 2), mean recovery (the wavefront of
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 import scipy.linalg
 from numba import njit
@@ -34,12 +36,13 @@ from numpy.typing import ArrayLike
 from seif_gym.slam import _kernels
 from seif_gym.slam._validation import as_finite_array, as_positive_scalar
 from seif_gym.slam.base import DEFAULT_INITIAL_POSE_COV
+from seif_gym.slam.eseif import ESEIF, RELOCALIZATION_RCOND
 from seif_gym.slam.information import InformationStore
 from seif_gym.slam.models import RangeBearingSensor, VelocityMotionModel, wrap_angle
 from seif_gym.slam.seif import SEIF
 from seif_gym.type_aliases import BoolArray, FloatArray, IntArray
 
-__all__ = ["BatchedSEIF"]
+__all__ = ["BatchedSEIF", "BatchedESEIF"]
 
 
 @njit(cache=True)
@@ -87,10 +90,15 @@ class BatchedSEIF:
     moves.
     """
 
+    #: The filter class whose update the batch computes (and whose filters :meth:`load` copies).
+    FILTER: type[SEIF] = SEIF
+    #: Options of ``FILTER`` beyond the SEIF's that a loaded filter must share with the batch.
+    _FILTER_OPTIONS: tuple[str, ...] = ()
+
     def __init__(self, num_filters: int, capacity: int, motion: VelocityMotionModel, sensor: RangeBearingSensor, *,
                  max_landmark_id: int | None = None, max_active: int | None = 8, recovery_landmarks: int = 8,
-                 recovery_budget: int = 64, recovery_relaxation: float = 1.8,
-                 recovery_tolerance: float = 1e-4) -> None:  # fmt: skip
+                 recovery_budget: int = 64, recovery_relaxation: float = 1.8, recovery_tolerance: float = 1e-4,
+                 **filter_options: Any) -> None:  # fmt: skip
         for name, value in (("num_filters", num_filters), ("capacity", capacity)):
             if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
                 raise ValueError(f"{name} must be a positive int, got {value!r}")
@@ -101,10 +109,12 @@ class BatchedSEIF:
         max_id = capacity - 1 if max_landmark_id is None else max_landmark_id
         if isinstance(max_id, bool) or not isinstance(max_id, (int, np.integer)) or max_id < 0:
             raise ValueError(f"max_landmark_id must be a non-negative int, got {max_landmark_id!r}")
-        # the SEIF checks its options; the batch takes them from a filter built with them
-        reference = SEIF(motion, sensor, np.zeros(3), max_active=max_active, recovery_landmarks=recovery_landmarks,
-                         recovery_budget=recovery_budget, recovery_relaxation=recovery_relaxation,
-                         recovery_tolerance=recovery_tolerance)  # fmt: skip
+        # the filter checks its options; the batch takes them from a filter built with them
+        reference = self.FILTER(motion, sensor, np.zeros(3), max_active=max_active,
+                                recovery_landmarks=recovery_landmarks, recovery_budget=recovery_budget,
+                                recovery_relaxation=recovery_relaxation, recovery_tolerance=recovery_tolerance,
+                                **filter_options)  # fmt: skip
+        self._reference = reference
         self.num_filters, self.capacity = int(num_filters), int(capacity)
         self.max_landmark_id = int(max_id)
         self.motion, self.sensor = motion, sensor
@@ -165,14 +175,15 @@ class BatchedSEIF:
         The recovery queue keeps its order (its ring may be laid out differently: a FIFO's order
         is all the recovery reads).
         """
-        if not isinstance(filt, SEIF) or type(filt) is not SEIF:
-            raise TypeError(f"filt must be a SEIF, got {type(filt).__name__}")
+        if type(filt) is not self.FILTER:
+            raise TypeError(f"filt must be a {self.FILTER.__name__}, got {type(filt).__name__}")
         options = filt.options
         if (options["mean_recovery"] != "wavefront" or options["implementation"] != "compiled"
                 or (-1 if filt.max_active is None else filt.max_active) != self.max_active
                 or filt.recovery_landmarks != self.recovery_landmarks or filt.recovery_budget != self.recovery_budget
                 or filt.recovery_relaxation != self.recovery_relaxation
-                or filt.recovery_tolerance != self.recovery_tolerance):  # fmt: skip
+                or filt.recovery_tolerance != self.recovery_tolerance
+                or any(options[name] != self._reference.options[name] for name in self._FILTER_OPTIONS)):  # fmt: skip
             raise ValueError(f"filt's options {options} differ from the batch's")
         # the batch has no innovation gate and one measurement covariance for all ranges
         if options.get("innovation_gate") is not None:
@@ -278,6 +289,17 @@ class BatchedSEIF:
                                   self._noise_info, self.max_active, self.recovery_landmarks, self.recovery_budget,
                                   self.recovery_relaxation, self.recovery_tolerance)  # fmt: skip
 
+    def update_arguments(self) -> tuple[Any, ...]:
+        """The update's arguments after the measurements, in the order of :func:`~seif_gym.slam._kernels.eseif_update_env`.
+
+        ``noise_info, noise_cov, max_active, relocalization_landmarks, split_weight, rcond, recovery_landmarks,
+        recovery_budget, recovery_relaxation, recovery_tolerance, eseif_counters``; a SEIF batch gives
+        ``relocalization_landmarks = 0`` (Thrun's sparsification) and placeholders for the ESEIF's own.
+        """
+        return (self._noise_info, np.zeros((2, 2)), self.max_active, 0, 0.5, 0.0, self.recovery_landmarks,
+                self.recovery_budget, self.recovery_relaxation, self.recovery_tolerance,
+                np.zeros((self.num_filters, 3), dtype=np.int64))  # fmt: skip
+
     # -- read-only views -------------------------------------------------------------------------
     def kernel_arrays(self) -> tuple[FloatArray, FloatArray, FloatArray, IntArray, FloatArray, IntArray, FloatArray,
                                      FloatArray, IntArray]:  # fmt: skip
@@ -326,3 +348,47 @@ class BatchedSEIF:
     def active_landmarks(self, index: int) -> IntArray:
         """Ids of the landmarks linked to filter ``index``'s robot, in the SEIF's order."""
         return self.ids[index, self.active[index, : self.counters[index, _ACTIVE]]]
+
+
+class BatchedESEIF(BatchedSEIF):
+    """``num_filters`` ESEIFs (:class:`~seif_gym.slam.eseif.ESEIF`) with one motion model, one sensor, one set of options.
+
+    As :class:`BatchedSEIF`, with the ESEIF's update (:func:`~seif_gym.slam._kernels.eseif_update_many`:
+    relocalization instead of Thrun's sparsification) and its options ``relocalization_landmarks``
+    and ``split_weight``. ``eseif_counters[e]`` holds filter ``e``'s ``relocalizations``,
+    ``split_relocalizations`` and ``discarded_measurements``.
+    """
+
+    FILTER = ESEIF
+    _FILTER_OPTIONS = ("relocalization_landmarks", "split_weight")
+
+    def __init__(self, num_filters: int, capacity: int, motion: VelocityMotionModel, sensor: RangeBearingSensor, *,
+                 relocalization_landmarks: int = 2, split_weight: float = 0.5, **options: Any) -> None:  # fmt: skip
+        super().__init__(num_filters, capacity, motion, sensor, relocalization_landmarks=relocalization_landmarks,
+                         split_weight=split_weight, **options)  # fmt: skip
+        reference = self._reference
+        assert isinstance(reference, ESEIF)
+        self.relocalization_landmarks = reference.relocalization_landmarks
+        self.split_weight = reference.split_weight
+        self._noise_cov = np.array(reference._measurement_cov)
+        #: per filter: relocalizations, split relocalizations, discarded measurements
+        self.eseif_counters = np.zeros((self.num_filters, 3), dtype=np.int64)
+
+    def reset(self, index: int, pose: ArrayLike, pose_cov: ArrayLike | None = None) -> None:
+        super().reset(index, pose, pose_cov)
+        self.eseif_counters[int(index)] = 0
+
+    def load(self, index: int, filt: SEIF) -> None:
+        super().load(index, filt)
+        assert isinstance(filt, ESEIF)  # load checked the type
+        self.eseif_counters[int(index)] = (filt.relocalizations, filt.split_relocalizations,
+                                           filt.discarded_measurements)  # fmt: skip
+
+    def update_trusted(self, ranges: FloatArray, bearings: FloatArray, ids: IntArray, counts: IntArray) -> None:
+        _kernels.eseif_update_many(*self.kernel_arrays(), *self.bookkeeping_arrays(), ranges, bearings, ids, counts,
+                                   *self.update_arguments())  # fmt: skip
+
+    def update_arguments(self) -> tuple[Any, ...]:
+        return (self._noise_info, self._noise_cov, self.max_active, self.relocalization_landmarks, self.split_weight,
+                RELOCALIZATION_RCOND, self.recovery_landmarks, self.recovery_budget, self.recovery_relaxation,
+                self.recovery_tolerance, self.eseif_counters)  # fmt: skip

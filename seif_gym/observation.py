@@ -16,6 +16,7 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from gymnasium import spaces
@@ -591,41 +592,10 @@ def encode_env(e: int, coverage: UInt8Array, resolution: float, half_arena: floa
 
 
 @njit(cache=True)
-def encode_many(coverage: UInt8Array, resolution: float, half_arena: float, max_range: float, half_fov: float,
-                map_size: int, map_extent: float, nearest_landmarks: int, diagonal: float, std_scale: float,
-                robot_info: FloatArray, robot_links: FloatArray, landmark_info: FloatArray, neighbour_index: IntArray,
-                neighbour_info: FloatArray, neighbour_count: IntArray, information_vector: FloatArray,
-                mean: FloatArray, block_position: IntArray, active: IntArray, counters: IntArray,
-                pose_out: Float32Array, landmarks_out: Float32Array, mask_out: Float32Array, map_out: UInt8Array,
-                pose_covariance_out: FloatArray) -> None:  # fmt: skip
-    """:func:`encode_env` of every SEIF of a batch, one after another."""
-    for e in range(mean.shape[0]):
-        encode_env(
-            e,
-            coverage,
-            resolution,
-            half_arena,
-            max_range,
-            half_fov,
-            map_size,
-            map_extent,
-            nearest_landmarks,
-            diagonal,
-            std_scale,
-            robot_info,
-            robot_links,
-            landmark_info,
-            neighbour_index,
-            neighbour_info,
-            neighbour_count,
-            information_vector,
-            mean,
-            block_position,
-            active,
-            counters,
-            pose_out,
-            landmarks_out,
-            mask_out,
-            map_out,
-            pose_covariance_out,
-        )
+def encode_many(*arguments: Any) -> None:
+    """:func:`encode_env` of every SEIF of a batch, one after another.
+
+    ``arguments``: those of :func:`encode_env` after ``e`` (the first one has the env axis).
+    """
+    for e in range(arguments[0].shape[0]):
+        encode_env(e, *arguments)

@@ -98,19 +98,13 @@ def _score_env(e: int, true_poses: FloatArray, truth: FloatArray, mean: FloatArr
 
 
 @njit(cache=True)
-def _score_many(true_poses: FloatArray, truth: FloatArray, mean: FloatArray, counters: IntArray, ids: IntArray,
-                robot_info: FloatArray, robot_links: FloatArray, landmark_info: FloatArray, neighbour_index: IntArray,
-                neighbour_info: FloatArray, neighbour_count: IntArray, information_vector: FloatArray,
-                block_position: IntArray, blanket_covariances: FloatArray, d_cap: float, previous_error: FloatArray,
-                wall: BoolArray, wall_penalty: float, divergence_threshold: float, dense_up_to: int,
-                reward: FloatArray, map_error: FloatArray, pose_error: FloatArray, diverged: BoolArray,
-                pose_nees: FloatArray, pose_nees_blanket: FloatArray) -> None:  # fmt: skip
-    """:func:`_score_env` of every env, one after another."""
-    for e in range(mean.shape[0]):
-        _score_env(e, true_poses, truth, mean, counters, ids, robot_info, robot_links, landmark_info, neighbour_index,
-                   neighbour_info, neighbour_count, information_vector, block_position, blanket_covariances, d_cap,
-                   previous_error, wall, wall_penalty, divergence_threshold, dense_up_to, reward, map_error,
-                   pose_error, diverged, pose_nees, pose_nees_blanket)  # fmt: skip
+def _score_many(*arguments: Any) -> None:
+    """:func:`_score_env` of every env, one after another.
+
+    ``arguments``: those of :func:`_score_env` after ``e`` (the first one has the env axis).
+    """
+    for e in range(arguments[0].shape[0]):
+        _score_env(e, *arguments)
 
 
 @njit(cache=True, parallel=True)

@@ -828,29 +828,24 @@ def seif_predict_env(e, robot_info, robot_links, landmark_info, neighbour_index,
 
 
 @njit(cache=True)
-def seif_predict_many(robot_info, robot_links, landmark_info, neighbour_index, neighbour_info, neighbour_count,
-                      information_vector, mean, block_position, active, active_count, controls, dt, alphas, floor):  # fmt: skip
-    """:func:`seif_predict_env` of every filter of a batch, one after another."""
-    for e in range(controls.shape[0]):
-        seif_predict_env(e, robot_info, robot_links, landmark_info, neighbour_index, neighbour_info,
-                         neighbour_count, information_vector, mean, block_position, active, active_count, controls,
-                         dt, alphas, floor)  # fmt: skip
+def seif_predict_many(*arguments):
+    """:func:`seif_predict_env` of every filter of a batch, one after another.
+
+    ``arguments``: those of :func:`seif_predict_env` after ``e`` (the first one has the env axis).
+    """
+    for e in range(arguments[0].shape[0]):
+        seif_predict_env(e, *arguments)
 
 
 @njit(cache=True)
-def seif_update_one(robot_info, robot_links, landmark_info, neighbour_index, neighbour_info, neighbour_count,
-                    information_vector, mean, block_position, active, counters, is_active, last_observed,
-                    id_to_index, ids, queue, queued, queue_state, ranges, bearings, measured, noise_info,
-                    max_active, recovery_landmarks, budget, relaxation, tolerance):  # fmt: skip
-    """``SEIF.update_trusted`` (known ids, wavefront recovery) of one filter of a batch.
+def _map_ids(mean, counters, id_to_index, ids, ranges, bearings, measured):
+    """State orders of the ``measured`` ids; a new landmark is appended at the inverse sensor model's position.
 
-    ``counters = [num_landmarks, active_count, update_count, round_robin]`` (updated in place);
-    ``id_to_index[id]`` is the state order of landmark ``id`` (-1: unmapped), ``ids`` the inverse.
+    ``SEIF.md``, sensor (``SlamFilter._update_known`` and ``SEIF._add_landmarks``); ``counters[0]`` counts it.
     """
     m = measured.shape[0]
     n = counters[0]
     indices = np.empty(m, dtype=np.int64)
-    # ids to state orders; a new landmark enters at the inverse sensor model's position (SEIF.md, sensor)
     x = mean[0]
     y = mean[1]
     theta = mean[2]
@@ -866,21 +861,34 @@ def seif_update_one(robot_info, robot_links, landmark_info, neighbour_index, nei
             mean[4 + 2 * index] = y + ranges[k] * np.sin(angle)
         indices[k] = index
     counters[0] = n
-    counters[2] += 1
-    update_count = counters[2]
-    if m > 0:
-        measurement_update(robot_info, robot_links, landmark_info, information_vector, mean,
-                           indices, ranges, bearings, noise_info)  # fmt: skip
+    return indices
+
+
+@njit(cache=True)
+def _incorporate_one(robot_info, robot_links, landmark_info, information_vector, mean, active, counters, is_active,
+                     last_observed, indices, ranges, bearings, noise_info):  # fmt: skip
+    """``SEIF._incorporate``: the measurement update, then the landmarks observed join the active set."""
+    if indices.shape[0] == 0:
+        return
+    measurement_update(robot_info, robot_links, landmark_info, information_vector, mean, indices, ranges, bearings,
+                       noise_info)  # fmt: skip
     count = counters[1]
-    for k in range(m):
+    for k in range(indices.shape[0]):
         i = indices[k]
-        last_observed[i] = update_count
+        last_observed[i] = counters[2]
         if not is_active[i]:
             active[count] = i
             count += 1
             is_active[i] = True
     counters[1] = count
-    # wavefront recovery: the next passive landmarks in round robin, then the robot block and the queue
+
+
+@njit(cache=True)
+def _recover_one(robot_info, robot_links, landmark_info, neighbour_index, neighbour_info, neighbour_count,
+                 information_vector, mean, block_position, active, counters, is_active, queue, queued, queue_state,
+                 recovery_landmarks, budget, relaxation, tolerance):  # fmt: skip
+    """``SEIF._recover_mean`` (wavefront): the next passive landmarks in round robin, the robot block, the queue."""
+    n = counters[0]
     batch = min(recovery_landmarks, n)
     seeds = np.empty(batch, dtype=np.int64)
     s = 0
@@ -891,13 +899,36 @@ def seif_update_one(robot_info, robot_links, landmark_info, neighbour_index, nei
             s += 1
     if batch > 0:
         counters[3] = (counters[3] + batch) % n
-    act = active[:count]
-    log_size = (s + count + budget) * (2 + neighbour_index.shape[1]) + 1
+    act = active[: counters[1]]
+    log_size = (s + act.shape[0] + budget) * (2 + neighbour_index.shape[1]) + 1
     recover_mean_wavefront(robot_info, robot_links, landmark_info, neighbour_index, neighbour_info, neighbour_count,
                            information_vector, mean, block_position, act, seeds[:s], queue, queued, queue_state,
                            budget, relaxation, tolerance, np.empty(log_size, np.int8), np.empty(log_size, np.int64),
                            np.empty((log_size, 2)), np.zeros(1, np.int64))  # fmt: skip
     rewrap_heading(robot_info, robot_links, information_vector, mean, act)
+
+
+@njit(cache=True)
+def seif_update_one(robot_info, robot_links, landmark_info, neighbour_index, neighbour_info, neighbour_count,
+                    information_vector, mean, block_position, active, counters, is_active, last_observed,
+                    id_to_index, ids, queue, queued, queue_state, ranges, bearings, measured, noise_info,
+                    max_active, recovery_landmarks, budget, relaxation, tolerance):  # fmt: skip
+    """``SEIF.update_trusted`` (known ids, wavefront recovery) of one filter of a batch.
+
+    ``counters = [num_landmarks, active_count, update_count, round_robin]`` (updated in place);
+    ``id_to_index[id]`` is the state order of landmark ``id`` (-1: unmapped), ``ids`` the inverse.
+    """
+    indices = _map_ids(mean, counters, id_to_index, ids, ranges, bearings, measured)
+    counters[2] += 1
+    update_count = counters[2]
+    _incorporate_one(robot_info, robot_links, landmark_info, information_vector, mean, active, counters, is_active,
+                     last_observed, indices, ranges, bearings, noise_info)  # fmt: skip
+    # wavefront recovery: the next passive landmarks in round robin, then the robot block and the queue
+    _recover_one(robot_info, robot_links, landmark_info, neighbour_index, neighbour_info, neighbour_count,
+                 information_vector, mean, block_position, active, counters, is_active, queue, queued, queue_state,
+                 recovery_landmarks, budget, relaxation, tolerance)  # fmt: skip
+    count = counters[1]
+    act = active[:count]
     # sparsification: the landmarks observed longest ago leave, never one observed in this update
     if max_active < 0 or count <= max_active:
         return
@@ -949,16 +980,13 @@ def seif_update_env(e, robot_info, robot_links, landmark_info, neighbour_index, 
 
 
 @njit(cache=True)
-def seif_update_many(robot_info, robot_links, landmark_info, neighbour_index, neighbour_info, neighbour_count,
-                     information_vector, mean, block_position, active, counters, is_active, last_observed,
-                     id_to_index, ids, queue, queued, queue_state, ranges, bearings, measured, measured_count,
-                     noise_info, max_active, recovery_landmarks, budget, relaxation, tolerance):  # fmt: skip
-    """:func:`seif_update_env` of every filter of a batch, one after another."""
-    for e in range(measured_count.shape[0]):
-        seif_update_env(e, robot_info, robot_links, landmark_info, neighbour_index, neighbour_info, neighbour_count,
-                        information_vector, mean, block_position, active, counters, is_active, last_observed,
-                        id_to_index, ids, queue, queued, queue_state, ranges, bearings, measured, measured_count,
-                        noise_info, max_active, recovery_landmarks, budget, relaxation, tolerance)  # fmt: skip
+def seif_update_many(*arguments):
+    """:func:`seif_update_env` of every filter of a batch, one after another.
+
+    ``arguments``: those of :func:`seif_update_env` after ``e`` (the first one has the env axis).
+    """
+    for e in range(arguments[0].shape[0]):
+        seif_update_env(e, *arguments)
 
 
 # -- the ESEIF's relocalization (seif_gym.slam.eseif) --------------------------------------------------------
@@ -1126,50 +1154,6 @@ def select_relocalization_landmarks(pose_information: FloatArray, count: int, rc
 
 # -- many ESEIFs in one call (seif_gym.slam.batched.BatchedESEIF) ---------------------------------------------------
 @njit(cache=True)
-def _incorporate_one(robot_info, robot_links, landmark_info, information_vector, mean, active, counters, is_active,
-                     last_observed, indices, ranges, bearings, noise_info):  # fmt: skip
-    """``SEIF._incorporate``: the measurement update, then the landmarks observed join the active set."""
-    if indices.shape[0] == 0:
-        return
-    measurement_update(robot_info, robot_links, landmark_info, information_vector, mean, indices, ranges, bearings,
-                       noise_info)  # fmt: skip
-    count = counters[1]
-    for k in range(indices.shape[0]):
-        i = indices[k]
-        last_observed[i] = counters[2]
-        if not is_active[i]:
-            active[count] = i
-            count += 1
-            is_active[i] = True
-    counters[1] = count
-
-
-@njit(cache=True)
-def _recover_one(robot_info, robot_links, landmark_info, neighbour_index, neighbour_info, neighbour_count,
-                 information_vector, mean, block_position, active, counters, is_active, queue, queued, queue_state,
-                 recovery_landmarks, budget, relaxation, tolerance):  # fmt: skip
-    """``SEIF._recover_mean`` (wavefront): the next passive landmarks in round robin, the robot block, the queue."""
-    n = counters[0]
-    batch = min(recovery_landmarks, n)
-    seeds = np.empty(batch, dtype=np.int64)
-    s = 0
-    for k in range(batch):
-        j = (counters[3] + k) % n
-        if not is_active[j]:
-            seeds[s] = j
-            s += 1
-    if batch > 0:
-        counters[3] = (counters[3] + batch) % n
-    act = active[: counters[1]]
-    log_size = (s + act.shape[0] + budget) * (2 + neighbour_index.shape[1]) + 1
-    recover_mean_wavefront(robot_info, robot_links, landmark_info, neighbour_index, neighbour_info, neighbour_count,
-                           information_vector, mean, block_position, act, seeds[:s], queue, queued, queue_state,
-                           budget, relaxation, tolerance, np.empty(log_size, np.int8), np.empty(log_size, np.int64),
-                           np.empty((log_size, 2)), np.zeros(1, np.int64))  # fmt: skip
-    rewrap_heading(robot_info, robot_links, information_vector, mean, act)
-
-
-@njit(cache=True)
 def _eseif_plan(mean, landmark_info, active_count, is_active, id_to_index, ranges, bearings, measured, noise_cov,
                 max_active, relocalization_landmarks, rcond):  # fmt: skip
     """``ESEIF._plan_update`` as ``(withheld, split, kept)``.
@@ -1262,24 +1246,7 @@ def eseif_update_one(robot_info, robot_links, landmark_info, neighbour_index, ne
     z_range = ranges[use]
     z_bearing = bearings[use]
     z_id = measured[use]
-    # ids to state orders; a new landmark enters at the inverse sensor model's position (SEIF.md, sensor)
-    n = counters[0]
-    indices = np.empty(m, dtype=np.int64)
-    x = mean[0]
-    y = mean[1]
-    theta = mean[2]
-    for k in range(m):
-        index = id_to_index[z_id[k]]
-        if index < 0:
-            index = n
-            n += 1
-            id_to_index[z_id[k]] = index
-            ids[index] = z_id[k]
-            angle = z_bearing[k] + theta
-            mean[3 + 2 * index] = x + z_range[k] * np.cos(angle)
-            mean[4 + 2 * index] = y + z_range[k] * np.sin(angle)
-        indices[k] = index
-    counters[0] = n
+    indices = _map_ids(mean, counters, id_to_index, ids, z_range, z_bearing, z_id)
     counters[2] += 1
     if withheld.shape[0] == 0:
         _incorporate_one(robot_info, robot_links, landmark_info, information_vector, mean, active, counters,
@@ -1341,15 +1308,10 @@ def eseif_update_env(e, robot_info, robot_links, landmark_info, neighbour_index,
 
 
 @njit(cache=True)
-def eseif_update_many(robot_info, robot_links, landmark_info, neighbour_index, neighbour_info, neighbour_count,
-                      information_vector, mean, block_position, active, counters, is_active, last_observed,
-                      id_to_index, ids, queue, queued, queue_state, ranges, bearings, measured, measured_count,
-                      noise_info, noise_cov, max_active, relocalization_landmarks, split_weight, rcond,
-                      recovery_landmarks, budget, relaxation, tolerance, eseif_counters):  # fmt: skip
-    """:func:`eseif_update_env` of every filter of a batch, one after another."""
-    for e in range(measured_count.shape[0]):
-        eseif_update_env(e, robot_info, robot_links, landmark_info, neighbour_index, neighbour_info, neighbour_count,
-                         information_vector, mean, block_position, active, counters, is_active, last_observed,
-                         id_to_index, ids, queue, queued, queue_state, ranges, bearings, measured, measured_count,
-                         noise_info, noise_cov, max_active, relocalization_landmarks, split_weight, rcond,
-                         recovery_landmarks, budget, relaxation, tolerance, eseif_counters)  # fmt: skip
+def eseif_update_many(*arguments):
+    """:func:`eseif_update_env` of every filter of a batch, one after another.
+
+    ``arguments``: those of :func:`eseif_update_env` after ``e`` (the first one has the env axis).
+    """
+    for e in range(arguments[0].shape[0]):
+        eseif_update_env(e, *arguments)

@@ -2,7 +2,8 @@
 
 Usage::
 
-    python benchmarks/bench_vector.py [--env SeifExplore-v1] [--sizes 1,16,64,256] [--seconds 3] [--repeats 3]
+    python benchmarks/bench_vector.py [--env SeifExplore-v1] [--env-kwargs JSON] [--sizes 1,16,64,256]
+        [--seconds 3] [--repeats 3]
 
 All in one process, random actions (each vector env's own seeded action
 space), autoreset on. Env steps per second count every sub-env's step (N per
@@ -27,6 +28,7 @@ import os
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import argparse  # noqa: E402
+import json  # noqa: E402
 import platform  # noqa: E402
 import sys  # noqa: E402
 import time  # noqa: E402
@@ -57,11 +59,17 @@ def env_steps_per_second(env: gym.vector.VectorEnv, seconds: float) -> float:
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--env", default="SeifExplore-v1")
+    parser.add_argument(
+        "--env-kwargs", default="{}", help='keyword arguments of every env, JSON (e.g. \'{"filter": "eseif"}\')'
+    )
     parser.add_argument("--sizes", default="1,16,64,256", help="comma-separated numbers of sub-envs")
     parser.add_argument("--seconds", type=float, default=3.0)
     parser.add_argument("--repeats", type=int, default=3)
     args = parser.parse_args(argv)
     sizes = [int(size) for size in args.sizes.split(",") if size.strip()]
+    kwargs = json.loads(args.env_kwargs)
+    if not isinstance(kwargs, dict):
+        parser.error("--env-kwargs must be a JSON object")
     if not sizes or min(sizes) < 1:
         parser.error("--sizes must be positive ints")
     makers: dict[str, object] = {
@@ -70,14 +78,16 @@ def main(argv: list[str] | None = None) -> int:
     }
     threads = numba.config.NUMBA_NUM_THREADS
     for n in sizes:
-        makers[f"{args.env} native ({n})"] = lambda n=n: gym.make_vec(args.env, n)
+        makers[f"{args.env} native ({n})"] = lambda n=n: gym.make_vec(args.env, n, **kwargs)
         if threads > 1 and n >= 32:
             makers[f"{args.env} native ({n}, {threads} threads)"] = lambda n=n: gym.make_vec(
-                args.env, n, num_threads=threads
+                args.env, n, num_threads=threads, **kwargs
             )
-        makers[f"{args.env} sync ({n})"] = lambda n=n: gym.make_vec(args.env, n, vectorization_mode="sync")
+        makers[f"{args.env} sync ({n})"] = lambda n=n: gym.make_vec(args.env, n, vectorization_mode="sync", **kwargs)
         if n <= 16:
-            makers[f"{args.env} async ({n})"] = lambda n=n: gym.make_vec(args.env, n, vectorization_mode="async")
+            makers[f"{args.env} async ({n})"] = lambda n=n: gym.make_vec(
+                args.env, n, vectorization_mode="async", **kwargs
+            )
     best = dict.fromkeys(makers, 0.0)
     for name, make in makers.items():
         env = make()  # type: ignore[operator]
@@ -90,7 +100,7 @@ def main(argv: list[str] | None = None) -> int:
     reference = best["CartPole-v1 SyncVectorEnv (64)"]
     print(f"Python {platform.python_version()}, numpy {np.__version__}, numba {numba.__version__} "
           f"({numba.config.NUMBA_NUM_THREADS} threads), gymnasium {gym.__version__}, {os.cpu_count()} CPUs; "
-          f"best of {args.repeats} runs of {args.seconds:g} s")  # fmt: skip
+          f"best of {args.repeats} runs of {args.seconds:g} s; env kwargs {kwargs}")  # fmt: skip
     print()
     print("| vector env | env steps/s | µs per env step | ratio to CartPole SyncVectorEnv(64) |")
     print("|---|---:|---:|---:|")

@@ -29,7 +29,7 @@ from collections.abc import Iterator
 
 import numpy as np
 
-__all__ = ["limit_blas_threads", "numba_threads"]
+__all__ = ["check_thread_count", "limit_blas_threads", "numba_threads"]
 
 _numba_pool_started = False
 
@@ -56,23 +56,36 @@ def _start_numba_pool() -> None:
     _numba_pool_started = True
 
 
+def check_thread_count(value: object, name: str) -> int:
+    """``value`` as a count of numba threads, from 1 to ``NUMBA_NUM_THREADS``; a clear error naming ``name`` else."""
+    import numba
+
+    limit = numba.config.NUMBA_NUM_THREADS
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
+        raise TypeError(f"{name} must be an int in [1, {limit}] (NUMBA_NUM_THREADS), got {value!r}")
+    if not 1 <= value <= limit:
+        raise ValueError(f"{name} must be an int in [1, {limit}] (NUMBA_NUM_THREADS), got {value!r}")
+    return int(value)
+
+
 @contextlib.contextmanager
-def numba_threads(count: int | None = None) -> Iterator[None]:
-    """Run numba's parallel kernels on ``count`` threads inside the block (``None``: the current count).
+def numba_threads(count: int) -> Iterator[None]:
+    """Run numba's parallel kernels on ``count`` threads inside the block.
 
     Numba's count is per calling thread; it is put back on exit. The first use starts numba's thread
     pool (:func:`_start_numba_pool`).
 
     Parameters
     ----------
-    count : int or None
-        Threads, from 1 to ``numba.config.NUMBA_NUM_THREADS``.
+    count : int
+        Threads, from 1 to ``numba.config.NUMBA_NUM_THREADS`` (checked before anything starts).
     """
+    count = check_thread_count(count, "count")
     _start_numba_pool()
     import numba
 
     previous = numba.get_num_threads()
-    numba.set_num_threads(previous if count is None else count)
+    numba.set_num_threads(count)
     try:
         yield
     finally:

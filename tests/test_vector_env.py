@@ -15,6 +15,7 @@ from gymnasium.vector import AutoresetMode, SyncVectorEnv
 import seif_gym  # noqa: F401  (registers the envs)
 from seif_gym.envs.explore import Measurements
 from seif_gym.envs.vector import SeifExploreVectorEnv
+from seif_gym.threads import numba_threads
 
 
 def _assert_equal(a, b, where: str) -> None:
@@ -98,9 +99,16 @@ def test_vector_env_rejects_bad_actions_before_any_env_moves():
         SeifExploreVectorEnv(0)
     with pytest.raises(ValueError, match="autoreset_mode"):
         SeifExploreVectorEnv(1, autoreset_mode="Disabled")
-    for threads in (0, numba.config.NUMBA_NUM_THREADS + 1, 1.5, True, None):
+    for threads in (0, numba.config.NUMBA_NUM_THREADS + 1):
         with pytest.raises(ValueError, match="num_threads"):
             SeifExploreVectorEnv(1, num_threads=threads)
+    for threads in (1.5, True, None):
+        with pytest.raises(TypeError, match="num_threads"):
+            SeifExploreVectorEnv(1, num_threads=threads)
+    # the context manager checks its count before it starts or changes anything
+    for count, error in ((0, ValueError), (numba.config.NUMBA_NUM_THREADS + 1, ValueError), ("2", TypeError)):
+        with pytest.raises(error, match="count"), numba_threads(count):
+            pass
 
 
 _THREADED_STEP = """

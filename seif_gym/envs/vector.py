@@ -37,7 +37,6 @@ import math
 from typing import Any
 
 import gymnasium as gym
-import numba
 import numpy as np
 from gymnasium.vector import AutoresetMode, SyncVectorEnv, VectorEnv
 from gymnasium.vector.utils import batch_space, concatenate, create_empty_array
@@ -51,7 +50,7 @@ from seif_gym.slam import _kernels
 from seif_gym.slam.batched import BatchedESEIF, BatchedSEIF
 from seif_gym.slam.models import VelocityMotionModel, wrap_angle
 from seif_gym.slam.seif import DENSE_MARGINALS_UP_TO, SEIF, exact_marginal_covariance
-from seif_gym.threads import numba_threads
+from seif_gym.threads import check_thread_count, numba_threads
 from seif_gym.type_aliases import BoolArray, Float32Array, FloatArray, IntArray, UInt8Array
 from seif_gym.world import BatchedWorld
 
@@ -185,7 +184,7 @@ class SeifExploreVectorEnv(VectorEnv):
         Threads the compiled kernels share the envs out to (numba's threads, at most
         ``NUMBA_NUM_THREADS``, the cores; each env's arithmetic is the same on any number;
         :func:`seif_gym.threads.numba_threads`). Default 1: numba's thread pool is not started. More
-        pay with many envs on cores nobody else wants, and cost where other busy processes share them;
+        pay with many envs on cores nobody else wants, and not where other busy processes share them;
         with numba's OpenMP layer, a process that has started the pool must not ``fork`` children that
         run numba's parallel code (``NUMBA_THREADING_LAYER=forksafe`` avoids it, at some speed).
     **kwargs
@@ -212,16 +211,9 @@ class SeifExploreVectorEnv(VectorEnv):
             raise ValueError(f"autoreset_mode must be NextStep or SameStep, got {mode.value!r}")
         if render_mode not in (None, "rgb_array"):
             raise ValueError(f"render_mode must be 'rgb_array' or None, got {render_mode!r}")
-        if (isinstance(num_threads, bool) or not isinstance(num_threads, (int, np.integer))
-                or not 1 <= num_threads <= numba.config.NUMBA_NUM_THREADS):  # fmt: skip
-            raise ValueError(f"num_threads must be an int in [1, {numba.config.NUMBA_NUM_THREADS}] "
-                             f"(NUMBA_NUM_THREADS), got {num_threads!r}")  # fmt: skip
         #: threads of the compiled kernels
-        self.num_threads = int(num_threads)
+        self.num_threads = check_thread_count(num_threads, "num_threads")
         self.num_envs = int(num_envs)
-        # more threads: one prange loop over the envs for the filters, observations and scores; one thread:
-        # a plain loop per kernel, which never starts numba's thread pool (seif_gym.threads: why that matters)
-        self._one_compiled_loop = self.num_threads > 1
         self.max_episode_steps = None if max_episode_steps is None else int(max_episode_steps)
         self.autoreset_mode = mode
         self.metadata = {**self.metadata, "autoreset_mode": mode}
@@ -342,7 +334,9 @@ class SeifExploreVectorEnv(VectorEnv):
         rewards, map_error, pose_error = np.zeros(n), np.zeros(n), np.zeros(n)
         diverged = np.zeros(n, dtype=bool)
         pose_nees, pose_nees_blanket = np.zeros(n), np.zeros(n)
-        if not self._one_compiled_loop:
+        # one thread: a plain loop per kernel, which never starts numba's thread pool (seif_gym.threads says
+        # why that matters); more: one prange loop over the envs for the filters, observations and scores
+        if self.num_threads == 1:
             filters.predict(executed, dt)
             filters.update_trusted(ranges, bearings, ids, counts)  # the worlds' own measurements: valid
             encode_many(self._coverage, config.coverage_resolution, template.encoder.half_arena, sensor.max_range,

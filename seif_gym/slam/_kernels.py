@@ -1237,12 +1237,9 @@ def eseif_update_one(robot_info, robot_links, landmark_info, neighbour_index, ne
     """
     withheld, split, kept = _eseif_plan(mean, landmark_info, counters[1], is_active, id_to_index, ranges, bearings,
                                         measured, noise_cov, max_active, relocalization_landmarks, rcond)  # fmt: skip
-    m = 0
-    for k in range(kept.shape[0]):
-        if kept[k]:
-            m += 1
-    eseif_counters[2] += kept.shape[0] - m
     use = np.flatnonzero(kept)
+    m = use.shape[0]
+    eseif_counters[2] += kept.shape[0] - m
     z_range = ranges[use]
     z_bearing = bearings[use]
     z_id = measured[use]

@@ -147,6 +147,7 @@ class BatchedSEIF:
         self.queued = np.zeros((n, c), dtype=bool)
         self.queue_state = np.zeros((n, 2), dtype=np.int64)
         self._started = np.zeros(n, dtype=bool)
+        self._unused_counters = np.zeros((n, 3), dtype=np.int64)  # the ESEIF's counters' place in update_arguments
 
     # -- episodes ---------------------------------------------------------------------------------
     def reset(self, index: int, pose: ArrayLike, pose_cov: ArrayLike | None = None) -> None:
@@ -297,8 +298,7 @@ class BatchedSEIF:
         ``relocalization_landmarks = 0`` (Thrun's sparsification) and placeholders for the ESEIF's own.
         """
         return (self._noise_info, np.zeros((2, 2)), self.max_active, 0, 0.5, 0.0, self.recovery_landmarks,
-                self.recovery_budget, self.recovery_relaxation, self.recovery_tolerance,
-                np.zeros((self.num_filters, 3), dtype=np.int64))  # fmt: skip
+                self.recovery_budget, self.recovery_relaxation, self.recovery_tolerance, self._unused_counters)  # fmt: skip
 
     # -- read-only views -------------------------------------------------------------------------
     def kernel_arrays(self) -> tuple[FloatArray, FloatArray, FloatArray, IntArray, FloatArray, IntArray, FloatArray,

@@ -28,12 +28,22 @@ goes to stderr (``--quiet``: none). The episodes are recorded and replayed one
 after another in this process, on ``--workers N`` local processes or as Ray
 tasks on a cluster (``--ray``; :mod:`agents.parallel`, ``docs/ray.md``): the
 rows are the same but for the measured times.
+
+``--paired-against LABEL`` compares every other policy with ``LABEL``, per
+filter and metric, over the episodes they share (the same layout and seed:
+the same landmarks, start and noise seed): the mean per-episode difference
+with its Student-t and bootstrap 95% intervals, and for the NEES metrics,
+whose tails are heavy, also the ratio of geometric means (the paired
+difference of the logarithms, exponentiated). :func:`paired_policies`;
+written to ``paired.md`` and ``paired.csv``.
 """
 
 from __future__ import annotations
 
 import argparse
+import csv
 import json
+import math
 import sys
 import time
 from collections.abc import Mapping, Sequence
@@ -45,13 +55,14 @@ import numpy as np
 
 import seif_gym  # noqa: F401  (registers the environments)
 from agents.baselines import BASELINES, Agent
-from agents.evaluate import agent_labels, build_agent, check_agent_spec, run_episode
+from agents.evaluate import agent_labels, build_agent, check_agent_spec, paired_difference, run_episode
 from agents.parallel import Executor, chunks
 from agents.parallel import add_arguments as add_executor_arguments
 from agents.parallel import from_arguments as executor_from_arguments
 from seif_gym.envs.explore import SeifExploreEnv
 from seif_gym.episodes import Episode, EpisodeRecorder
 from seif_gym.evaluate import (
+    RESULT_COLUMNS,
     FilterSpec,
     default_filters,
     parse_filters,
@@ -64,10 +75,21 @@ from seif_gym.progress import Progress
 from seif_gym.threads import limit_blas_threads
 from seif_gym.world import LAYOUTS
 
-__all__ = ["DEFAULT_POLICIES", "record_episode", "evaluate", "main"]
+__all__ = ["DEFAULT_POLICIES", "PAIRED_METRICS", "PAIRED_COLUMNS", "record_episode", "evaluate",
+           "paired_policies", "paired_policies_table", "main"]  # fmt: skip
 
 #: Policies of a run without ``--policies``.
 DEFAULT_POLICIES: tuple[str, ...] = BASELINES
+
+#: Metrics of :func:`paired_policies` by default (columns of :data:`seif_gym.evaluate.RESULT_COLUMNS`).
+PAIRED_METRICS: tuple[str, ...] = ("anees_pose", "anees_relative", "final_map_error", "pose_rmse")
+
+#: Columns of :func:`paired_policies`' rows (``paired.csv``).
+PAIRED_COLUMNS: tuple[str, ...] = (
+    "filter", "metric", "policy", "reference", "n", "policy_mean", "reference_mean", "difference",
+    "ci95_low", "ci95_high", "bootstrap_ci95_low", "bootstrap_ci95_high", "ratio", "ratio_ci95_low",
+    "ratio_ci95_high", "verdict",
+)  # fmt: skip
 
 
 def record_episode(env: EpisodeRecorder, agent: Agent, seed: int) -> Episode:
@@ -205,6 +227,131 @@ def evaluate(
     return rows, series
 
 
+def paired_policies(
+    rows: Sequence[Mapping[str, Any]],
+    reference: str,
+    metrics: Sequence[str] = PAIRED_METRICS,
+    *,
+    bootstrap: int = 2000,
+) -> list[dict[str, Any]]:
+    """Every policy against ``reference``, per filter and metric, paired over (layout, seed).
+
+    Parameters
+    ----------
+    rows : sequence of dict
+        :func:`evaluate`'s rows (``policy``, ``layout``, ``seed``, ``filter`` and the metrics).
+    reference : str
+        The policy label the others are compared with.
+    metrics : sequence of str
+        Numeric columns of the rows.
+    bootstrap : int
+        Resamples of the percentile bootstrap interval (:func:`agents.evaluate.paired_difference`).
+
+    Returns
+    -------
+    list of dict
+        One row per (filter, metric, policy other than ``reference``), keys
+        :data:`PAIRED_COLUMNS`. ``difference`` is the mean of ``policy −
+        reference`` over the episodes both have with a finite value (``n``);
+        ``verdict`` is ``"higher"`` or ``"lower"`` when the t interval
+        excludes zero, else ``"tie"``. For a metric whose name starts with
+        ``anees`` (positive, heavy-tailed) ``ratio`` is ``exp(mean(log
+        policy − log reference))``, the ratio of the geometric means, with the
+        exponentiated t interval; ``None`` for the other metrics.
+
+    Raises
+    ------
+    ValueError
+        If ``reference`` is not a policy of the rows, a metric is not a
+        column, or no episode is shared.
+
+    Examples
+    --------
+    >>> rows = [{"policy": p, "layout": "loop", "seed": s, "filter": "seif-k8", "anees_pose": v}
+    ...         for p, vs in (("ppo", (3.0, 4.0, 5.0)), ("adversary", (6.0, 8.0, 11.0))) for s, v in enumerate(vs)]
+    >>> row = paired_policies(rows, "ppo", ["anees_pose"], bootstrap=0)[0]
+    >>> row["policy"], row["difference"], row["verdict"], round(row["ratio"], 3)
+    ('adversary', 4.333333333333333, 'higher', 2.065)
+    """
+    policies = list(dict.fromkeys(str(row["policy"]) for row in rows))
+    if reference not in policies:
+        raise ValueError(f"reference: {reference!r} is not a policy of the rows ({', '.join(policies)})")
+    missing = [metric for metric in metrics if rows and metric not in rows[0]]
+    if missing:
+        raise ValueError(f"metrics: not columns of the rows: {missing}")
+    values: dict[tuple[str, str], dict[tuple[str, int], Mapping[str, Any]]] = {}
+    for row in rows:
+        values.setdefault((str(row["filter"]), str(row["policy"])), {})[(str(row["layout"]), int(row["seed"]))] = row
+    filters = list(dict.fromkeys(str(row["filter"]) for row in rows))
+    out: list[dict[str, Any]] = []
+    for filter_label in filters:
+        base = values.get((filter_label, reference), {})
+        for metric in metrics:
+            for policy in policies:
+                if policy == reference:
+                    continue
+                mine = values.get((filter_label, policy), {})
+                pairs = [(float(mine[k][metric]), float(base[k][metric])) for k in mine if k in base]
+                pairs = [(a, b) for a, b in pairs if math.isfinite(a) and math.isfinite(b)]
+                if not pairs:
+                    raise ValueError(
+                        f"{policy} and {reference} share no episode with a finite {metric} ({filter_label})"
+                    )
+                a, b = np.array(pairs).T
+                stats = paired_difference(a, b, bootstrap=bootstrap)
+                low, high = stats["ci95_low"], stats["ci95_high"]
+                verdict = "tie" if low is None or low <= 0.0 <= high else ("higher" if low > 0.0 else "lower")
+                ratio = ratio_low = ratio_high = None
+                if metric.startswith("anees") and np.all(a > 0.0) and np.all(b > 0.0):
+                    logs = paired_difference(np.log(a), np.log(b))
+                    ratio = math.exp(logs["mean"])
+                    if logs["ci95_low"] is not None:
+                        ratio_low, ratio_high = math.exp(logs["ci95_low"]), math.exp(logs["ci95_high"])
+                out.append({
+                    "filter": filter_label, "metric": metric, "policy": policy, "reference": reference,
+                    "n": stats["n"], "policy_mean": float(a.mean()), "reference_mean": float(b.mean()),
+                    "difference": stats["mean"], "ci95_low": low, "ci95_high": high,
+                    "bootstrap_ci95_low": stats["bootstrap_ci95_low"],
+                    "bootstrap_ci95_high": stats["bootstrap_ci95_high"],
+                    "ratio": ratio, "ratio_ci95_low": ratio_low, "ratio_ci95_high": ratio_high, "verdict": verdict,
+                })  # fmt: skip
+    return out
+
+
+def paired_policies_table(paired: Sequence[Mapping[str, Any]], digits: int = 3) -> str:
+    """:func:`paired_policies`' rows as Markdown, one table per metric."""
+
+    def number(value: Any) -> str:
+        return "" if value is None else f"{value:+.{digits}f}"
+
+    def interval(low: Any, high: Any, sign: bool = True) -> str:
+        if low is None or high is None:
+            return ""
+        return f"[{number(low)}, {number(high)}]" if sign else f"[{low:.{digits}f}, {high:.{digits}f}]"
+
+    lines: list[str] = []
+    for metric in dict.fromkeys(str(row["metric"]) for row in paired):
+        chosen = [row for row in paired if row["metric"] == metric]
+        lines += [f"### {metric}: policy − {chosen[0]['reference']}, paired over (layout, seed)", "",
+                  "| filter | policy | n | policy mean | reference mean | difference | t 95% | bootstrap 95% "
+                  "| ratio of geometric means [95%] | verdict |",
+                  "|---|---|--:|--:|--:|--:|--:|--:|--:|---|"]  # fmt: skip
+        for row in chosen:
+            ratio = (
+                ""
+                if row["ratio"] is None
+                else f"{row['ratio']:.2f}× " + interval(row["ratio_ci95_low"], row["ratio_ci95_high"], sign=False)
+            )
+            lines.append(
+                f"| {row['filter']} | {row['policy']} | {row['n']} | {row['policy_mean']:.{digits}f} | "
+                f"{row['reference_mean']:.{digits}f} | {number(row['difference'])} | "
+                f"{interval(row['ci95_low'], row['ci95_high'])} | "
+                f"{interval(row['bootstrap_ci95_low'], row['bootstrap_ci95_high'])} | {ratio} | {row['verdict']} |"
+            )
+        lines.append("")
+    return "\n".join(lines).rstrip() + "\n"
+
+
 #: Warm-ups done in this process: (filters, env config, nees_every).
 _WARMED: set[str] = set()
 
@@ -276,6 +423,14 @@ def _parser() -> argparse.ArgumentParser:
     parser.add_argument("--out", default="eval/robustness", help="output folder (default eval/robustness)")
     parser.add_argument("--no-save-episodes", action="store_true", help="do not save the recorded episodes")
     parser.add_argument("--quiet", action="store_true", help="no progress on stderr")
+    parser.add_argument(
+        "--paired-against",
+        default=None,
+        metavar="LABEL",
+        help="compare every other policy with this one, paired over (layout, seed): paired.md/.csv",
+    )
+    parser.add_argument("--paired-metrics", default=",".join(PAIRED_METRICS),
+                        help=f"metrics of --paired-against (default {','.join(PAIRED_METRICS)})")  # fmt: skip
     add_executor_arguments(parser)
     return parser
 
@@ -305,6 +460,14 @@ def main(argv: Sequence[str] | None = None) -> int:
     except (ValueError, FileNotFoundError) as error:
         parser.error(str(error))
     seeds = list(range(args.seed, args.seed + args.seeds))
+    paired_metrics = _split(args.paired_metrics)
+    if args.paired_against is not None:
+        labels = [label for label, _ in agent_labels(policies)]
+        if args.paired_against not in labels:
+            parser.error(f"--paired-against: {args.paired_against!r} is not a policy label ({', '.join(labels)})")
+        unknown_metrics = [m for m in paired_metrics if m not in RESULT_COLUMNS]
+        if unknown_metrics:
+            parser.error(f"--paired-metrics: not result columns: {unknown_metrics}")
     executor = executor_from_arguments(args, parser)
     out = Path(args.out)
     limit_blas_threads(1)
@@ -326,6 +489,17 @@ def main(argv: Sequence[str] | None = None) -> int:
     print(f"{args.env}: policies {args.policies}; layouts {','.join(layouts)}; seeds {seeds[0]}..{seeds[-1]}; "
           f"{args.steps} steps\n")  # fmt: skip
     print(summary_tables(rows, series))
+    if args.paired_against is not None:
+        paired = paired_policies(rows, args.paired_against, paired_metrics)
+        table = paired_policies_table(paired)
+        paths["paired_md"] = out / "paired.md"
+        paths["paired_md"].write_text(table)
+        paths["paired_csv"] = out / "paired.csv"
+        with paths["paired_csv"].open("w", newline="") as handle:
+            writer = csv.DictWriter(handle, fieldnames=list(PAIRED_COLUMNS))
+            writer.writeheader()
+            writer.writerows({key: ("" if row[key] is None else row[key]) for key in PAIRED_COLUMNS} for row in paired)
+        print("\n" + table)
     print(f"\nwrote {', '.join(str(p) for p in paths.values())}; {wall:.0f} s")
     return 0
 

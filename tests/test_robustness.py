@@ -176,3 +176,60 @@ def test_adversary_return_is_the_final_gap():
     expected = (episode.map_errors[-1] - ekf[-1]) - (episode.map_errors[0] - ekf[0])
     assert total == pytest.approx(expected, abs=1e-12)
     assert info["map_error_gap"] == episode.map_errors[-1] - ekf[-1]
+
+
+def _paired_rows(values: dict[str, list[float]], metric: str = "anees_pose") -> list[dict]:
+    return [{"policy": policy, "layout": layout, "seed": seed, "filter": "seif-k8", metric: value}
+            for policy, per_seed in values.items() for seed, value in enumerate(per_seed)
+            for layout in ("loop",)]  # fmt: skip
+
+
+def test_paired_policies_pairs_by_layout_and_seed():
+    import doctest
+
+    import agents.robustness
+
+    assert doctest.testmod(agents.robustness).failed == 0
+    from agents.robustness import paired_policies
+
+    reference = [3.0, 4.0, 5.0, 30.0, 3.5]
+    other = [4.0, 4.5, 6.0, 45.0, 3.0]
+    rows = _paired_rows({"ppo": reference, "adversary": other})
+    # rows of episodes the reference lacks are left out, in any order
+    rows.append({"policy": "adversary", "layout": "uniform", "seed": 0, "filter": "seif-k8", "anees_pose": 1e6})
+    (row,) = paired_policies(list(reversed(rows)), "ppo", ["anees_pose"], bootstrap=500)
+    d = np.subtract(other, reference)
+    half = 2.7764451051977987 * d.std(ddof=1) / np.sqrt(5)  # t_{0.975, 4}
+    assert row["n"] == 5 and row["difference"] == pytest.approx(d.mean())
+    assert (row["ci95_low"], row["ci95_high"]) == pytest.approx((d.mean() - half, d.mean() + half))
+    assert row["bootstrap_ci95_low"] <= d.mean() <= row["bootstrap_ci95_high"]
+    logs = np.log(other) - np.log(reference)
+    assert row["ratio"] == pytest.approx(np.exp(logs.mean()))
+    assert row["verdict"] == ("higher" if d.mean() - half > 0 else "tie")
+    # a clearly lower policy, and a metric that is not a NEES has no ratio
+    (row,) = paired_policies(_paired_rows({"a": [1.0, 2, 3, 4], "b": [0.5, 1.4, 2.6, 3.3]}, "pose_rmse"), "a",
+                             ["pose_rmse"], bootstrap=0)  # fmt: skip
+    assert row["verdict"] == "lower" and row["ratio"] is None and row["bootstrap_ci95_low"] is None
+    with pytest.raises(ValueError, match="reference"):
+        paired_policies(rows, "frontier", ["anees_pose"])
+    with pytest.raises(ValueError, match="metrics"):
+        paired_policies(rows, "ppo", ["no_such_metric"])
+
+
+def test_paired_against_writes_paired_tables(tmp_path, capsys):
+    out = tmp_path / "run"
+    argv = ["--policies", "random,still=frontier", "--layouts", "uniform", "--seeds", "2", "--steps", "8",
+            "--filters", "seif-k8,ekf", "--out", str(out), "--quiet", "--no-save-episodes",
+            "--paired-against", "random", "--paired-metrics", "anees_pose,final_map_error"]  # fmt: skip
+    assert main(argv) == 0
+    with (out / "paired.csv").open() as handle:
+        rows = list(csv.DictReader(handle))
+    assert [(r["filter"], r["metric"], r["policy"]) for r in rows] == [
+        ("seif-k8", "anees_pose", "still"), ("seif-k8", "final_map_error", "still"),
+        ("ekf", "anees_pose", "still"), ("ekf", "final_map_error", "still"),
+    ]  # fmt: skip
+    assert all(r["n"] == "2" and r["reference"] == "random" for r in rows)
+    assert "### anees_pose: policy − random" in (out / "paired.md").read_text()
+    with pytest.raises(SystemExit):
+        main([*argv[:-4], "--paired-against", "nobody"])
+    assert "--paired-against" in capsys.readouterr().err

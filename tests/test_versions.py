@@ -4,6 +4,20 @@ The digests below were computed with seif_gym 0.1 (commit 0da2cee), by the
 same functions as here: a SHA-256 over every observation array, reward and
 pose estimate of a seeded episode. They are regression fixtures of the old
 version's output, not expected values of a computation.
+
+"Bit for bit" holds for one set of BLAS/LAPACK kernels: OpenBLAS picks its
+kernels by CPU at run time, and kernels of different families round the
+small matrix products and factorizations of the filter differently (seif_gym
+0.1's own output differs between them). So 0.1's digests are recorded per
+OpenBLAS kernel family, for every x86-64 family OpenBLAS has. To record a
+family (for example an ARM machine's), run 0.1 on it::
+
+    git worktree add /tmp/seif_gym_0_1 0da2cee
+    PYTHONPATH=/tmp/seif_gym_0_1 python tests/test_versions.py
+
+which prints the kernel architecture and the five digests of 0.1
+(``OPENBLAS_CORETYPE=<name>`` forces a family on a CPU that can run it; that
+is how the x86-64 rows were made, on one AMD EPYC).
 """
 
 from __future__ import annotations
@@ -15,18 +29,46 @@ import warnings
 import gymnasium as gym
 import numpy as np
 import pytest
+import scipy.linalg  # noqa: F401  (loads scipy's OpenBLAS, which the compiled kernels' LAPACK calls use)
+import threadpoolctl
 
 import seif_gym
 from seif_gym.envs.explore import SeifExploreEnv
 
-#: (env id, kwargs, seed, policy) -> digest of seif_gym 0.1.
+#: OpenBLAS kernel architecture (as threadpoolctl reports it) -> the family whose results it shares.
+KERNEL_FAMILIES: dict[str, str] = {
+    **dict.fromkeys(("Prescott", "Core2"), "sse3"),
+    **dict.fromkeys(("Nehalem", "Barcelona"), "sse4"),
+    **dict.fromkeys(("SandyBridge", "Bulldozer", "Piledriver", "Steamroller", "Excavator"), "avx"),
+    **dict.fromkeys(("Haswell", "Zen"), "avx2"),
+    **dict.fromkeys(("SkylakeX", "Cooperlake", "SapphireRapids"), "avx512"),
+}
+
+#: (env id, kwargs, policy, {kernel family: digest of seif_gym 0.1}).
 V0_DIGESTS = [
-    ("SeifExplore-v0", {}, "random", "de88b8089b2ede59"),
-    ("SeifExploreLoop-v0", {}, "random", "419731381d931bfd"),
-    ("SeifExplore-v0", {"filter": "eseif"}, "random", "f363626823e00e07"),
-    ("SeifExploreLoop-v0", {"data_association": "ml"}, "weave", "2303aac46d94fd41"),
-    ("SeifExplore-v0", {"data_association": "ml"}, "weave", "16df03d3d773ea53"),
-]
+    ("SeifExplore-v0", {}, "random", {"sse3": "5a65f4fd75926bdd", "sse4": "612c24ef0e296eb7",
+     "avx": "46a95c7b028eea91", "avx2": "de88b8089b2ede59", "avx512": "610dcfbba32abb1d"}),
+    ("SeifExploreLoop-v0", {}, "random", {"sse3": "0db0c6ea81cb4563", "sse4": "1a01476c5750e1cc",
+     "avx": "44cf63ad99e7a1aa", "avx2": "419731381d931bfd", "avx512": "8f45a998679e44f2"}),
+    ("SeifExplore-v0", {"filter": "eseif"}, "random", {"sse3": "259feade699cc027", "sse4": "259feade699cc027",
+     "avx": "9d397bbbd92ff8d0", "avx2": "f363626823e00e07", "avx512": "04e7a366421de062"}),
+    ("SeifExploreLoop-v0", {"data_association": "ml"}, "weave", {"sse3": "9b9f1166d5c24e25",
+     "sse4": "251da6885e94fa25", "avx": "e147e2c599f7ba28", "avx2": "2303aac46d94fd41",
+     "avx512": "a55ffe2d4e07499b"}),
+    ("SeifExplore-v0", {"data_association": "ml"}, "weave", {"sse3": "4b1624752744f1e6",
+     "sse4": "9e8883244f507920", "avx": "f4dbf5e3193bbef5", "avx2": "16df03d3d773ea53",
+     "avx512": "a86c7a93aecc7d86"}),
+]  # fmt: skip
+
+
+def blas_architecture() -> str:
+    """The kernel architecture of the loaded OpenBLAS libraries (numpy's and scipy's must agree)."""
+    found = {info.get("architecture") for info in threadpoolctl.threadpool_info() if info["internal_api"] == "openblas"}
+    if len(found) != 1:
+        raise RuntimeError(
+            f"expected one OpenBLAS kernel architecture in numpy and scipy, found {sorted(map(str, found))}"
+        )
+    return str(found.pop())
 
 
 def episode_digest(env: gym.Env, policy: str, steps: int) -> str:
@@ -54,11 +96,21 @@ def episode_digest(env: gym.Env, policy: str, steps: int) -> str:
     "env_id, kwargs, policy, expected", V0_DIGESTS, ids=[f"{d[0]}-{d[2]}-{d[1]}" for d in V0_DIGESTS]
 )
 def test_v0_reproduces_seif_gym_0_1(env_id, kwargs, policy, expected):
+    architecture = blas_architecture()
+    if architecture not in KERNEL_FAMILIES:
+        pytest.fail(
+            f"no seif_gym 0.1 digests recorded for OpenBLAS kernels {architecture!r}: record them (module docstring)"
+        )
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", DeprecationWarning)  # gymnasium: "-v0 is out of date"
         env = gym.make(env_id, **kwargs)
     steps = 300 if policy == "random" else 400
-    assert episode_digest(env, policy, steps) == expected
+    assert episode_digest(env, policy, steps) == expected[KERNEL_FAMILIES[architecture]]
+
+
+def test_every_case_has_a_digest_for_every_family():
+    for env_id, _, _, digests in V0_DIGESTS:
+        assert set(digests) == set(KERNEL_FAMILIES.values()), env_id
 
 
 def test_every_layout_has_every_version():
@@ -86,3 +138,12 @@ def test_v1_recovery_differs_from_v0():
     new = gym.make("SeifExploreLoop-v1")
     assert episode_digest(old, "weave", 200) != episode_digest(new, "weave", 200)
     assert new.unwrapped.filter.mean_recovery == "wavefront" and old.unwrapped.filter.mean_recovery == "amortized"
+
+
+if __name__ == "__main__":  # print this machine's kernel architecture and the digests of the seif_gym on PYTHONPATH
+    print(f"OpenBLAS kernels: {blas_architecture()} ({seif_gym.__file__})")
+    for env_id, kwargs, policy, _ in V0_DIGESTS:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", DeprecationWarning)
+            made = gym.make(env_id, **kwargs)
+        print(env_id, kwargs, policy, episode_digest(made, policy, 300 if policy == "random" else 400))

@@ -39,6 +39,17 @@ checkpoint of (``ppo_v1.zip``: the exploring policy shipped until commit 55db0f1
         --wrapper agents.adversary:SeifVsEkfReward --wrapper-kwargs '{"nees_weight": 0.01}' \
         --hyperparams learning_rate=1e-4 --timesteps 250000 --out runs/adversary_nees --seed 5
 
+The adversary of the faithful filter, ``agents/policies/ppo_adversary_v1.zip``,
+is the 200 k-step checkpoint of the same recipe on ``SeifExplore-v1``, started
+from the shipped exploring policy (chosen on the SEIF pose ANEES of 20
+validation episodes; ``docs/robustness.md``, "The adversary against the
+faithful SEIF")::
+
+    python -m agents.train --algo ppo --env SeifExplore-v1 --init-from agents/policies/ppo_seif_explore.zip \
+        --wrapper agents.adversary:SeifVsEkfReward --wrapper-kwargs '{"nees_weight": 0.01}' \
+        --hyperparams learning_rate=1e-4 --timesteps 400000 --checkpoint-freq 100000 \
+        --eval-freq 1000000 --out runs/adversary_v1 --seed 5
+
 From scratch and with the gap alone (``nees_weight = 0``) PPO learned to
 hardly move: the gap is zero for a robot that sees little.
 

@@ -233,6 +233,7 @@ def paired_policies(
     metrics: Sequence[str] = PAIRED_METRICS,
     *,
     bootstrap: int = 2000,
+    relative_to: str | None = None,
 ) -> list[dict[str, Any]]:
     """Every policy against ``reference``, per filter and metric, paired over (layout, seed).
 
@@ -246,6 +247,10 @@ def paired_policies(
         Numeric columns of the rows.
     bootstrap : int
         Resamples of the percentile bootstrap interval (:func:`agents.evaluate.paired_difference`).
+    relative_to : str, optional
+        A filter label: compare each filter's value minus this filter's on the
+        same episode (e.g. ``"ekf"`` with ``final_map_error``: the map error gap
+        to the exact filter, the adversary's objective), for the other filters.
 
     Returns
     -------
@@ -283,6 +288,18 @@ def paired_policies(
     for row in rows:
         values.setdefault((str(row["filter"]), str(row["policy"])), {})[(str(row["layout"]), int(row["seed"]))] = row
     filters = list(dict.fromkeys(str(row["filter"]) for row in rows))
+    if relative_to is not None:
+        if relative_to not in filters:
+            raise ValueError(f"relative_to: {relative_to!r} is not a filter of the rows ({', '.join(filters)})")
+        filters.remove(relative_to)
+        for (filter_label, policy), episodes in list(values.items()):
+            if filter_label == relative_to:
+                continue
+            baseline = values.get((relative_to, policy), {})
+            values[(filter_label, policy)] = {
+                key: {metric: float(row[metric]) - float(baseline[key][metric]) for metric in metrics}
+                for key, row in episodes.items() if key in baseline
+            }  # fmt: skip
     out: list[dict[str, Any]] = []
     for filter_label in filters:
         base = values.get((filter_label, reference), {})
@@ -302,13 +319,14 @@ def paired_policies(
                 low, high = stats["ci95_low"], stats["ci95_high"]
                 verdict = "tie" if low is None or low <= 0.0 <= high else ("higher" if low > 0.0 else "lower")
                 ratio = ratio_low = ratio_high = None
-                if metric.startswith("anees") and np.all(a > 0.0) and np.all(b > 0.0):
+                if relative_to is None and metric.startswith("anees") and np.all(a > 0.0) and np.all(b > 0.0):
                     logs = paired_difference(np.log(a), np.log(b))
                     ratio = math.exp(logs["mean"])
                     if logs["ci95_low"] is not None:
                         ratio_low, ratio_high = math.exp(logs["ci95_low"]), math.exp(logs["ci95_high"])
                 out.append({
-                    "filter": filter_label, "metric": metric, "policy": policy, "reference": reference,
+                    "filter": filter_label if relative_to is None else f"{filter_label} − {relative_to}",
+                    "metric": metric, "policy": policy, "reference": reference,
                     "n": stats["n"], "policy_mean": float(a.mean()), "reference_mean": float(b.mean()),
                     "difference": stats["mean"], "ci95_low": low, "ci95_high": high,
                     "bootstrap_ci95_low": stats["bootstrap_ci95_low"],
@@ -429,8 +447,14 @@ def _parser() -> argparse.ArgumentParser:
         metavar="LABEL",
         help="compare every other policy with this one, paired over (layout, seed): paired.md/.csv",
     )
-    parser.add_argument("--paired-metrics", default=",".join(PAIRED_METRICS),
-                        help=f"metrics of --paired-against (default {','.join(PAIRED_METRICS)})")  # fmt: skip
+    parser.add_argument(
+        "--paired-metrics",
+        default=",".join(PAIRED_METRICS),
+        help=f"metrics of --paired-against (default {','.join(PAIRED_METRICS)})",
+    )
+    parser.add_argument("--paired-relative-to", default=None, metavar="FILTER",
+                        help="with --paired-against, also compare each filter's value minus this filter's on the same "
+                             "episode (e.g. ekf: the map error gap)")  # fmt: skip
     add_executor_arguments(parser)
     return parser
 
@@ -468,6 +492,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         unknown_metrics = [m for m in paired_metrics if m not in RESULT_COLUMNS]
         if unknown_metrics:
             parser.error(f"--paired-metrics: not result columns: {unknown_metrics}")
+        filter_labels = [spec.label for spec in specs]
+        if args.paired_relative_to is not None and args.paired_relative_to not in filter_labels:
+            parser.error(f"--paired-relative-to: {args.paired_relative_to!r} is not one of --filters")
     executor = executor_from_arguments(args, parser)
     out = Path(args.out)
     limit_blas_threads(1)
@@ -491,6 +518,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     print(summary_tables(rows, series))
     if args.paired_against is not None:
         paired = paired_policies(rows, args.paired_against, paired_metrics)
+        if args.paired_relative_to is not None:
+            paired += paired_policies(rows, args.paired_against, paired_metrics, relative_to=args.paired_relative_to)
         table = paired_policies_table(paired)
         paths["paired_md"] = out / "paired.md"
         paths["paired_md"].write_text(table)

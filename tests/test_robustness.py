@@ -210,6 +210,14 @@ def test_paired_policies_pairs_by_layout_and_seed():
     (row,) = paired_policies(_paired_rows({"a": [1.0, 2, 3, 4], "b": [0.5, 1.4, 2.6, 3.3]}, "pose_rmse"), "a",
                              ["pose_rmse"], bootstrap=0)  # fmt: skip
     assert row["verdict"] == "lower" and row["ratio"] is None and row["bootstrap_ci95_low"] is None
+    # relative_to: each filter's value minus another filter's on the same episode
+    gap_rows = [{**row, "filter": "ekf", "anees_pose": 1.0 + row["seed"]} for row in rows] + rows
+    (row,) = paired_policies(gap_rows, "ppo", ["anees_pose"], bootstrap=0, relative_to="ekf")
+    assert row["filter"] == "seif-k8 − ekf" and row["ratio"] is None
+    assert row["difference"] == pytest.approx(d.mean())  # the same offset on both sides cancels
+    assert row["policy_mean"] == pytest.approx(np.mean(other) - np.mean(1.0 + np.arange(5)))
+    with pytest.raises(ValueError, match="relative_to"):
+        paired_policies(rows, "ppo", ["anees_pose"], relative_to="eif")
     with pytest.raises(ValueError, match="reference"):
         paired_policies(rows, "frontier", ["anees_pose"])
     with pytest.raises(ValueError, match="metrics"):
@@ -220,16 +228,21 @@ def test_paired_against_writes_paired_tables(tmp_path, capsys):
     out = tmp_path / "run"
     argv = ["--policies", "random,still=frontier", "--layouts", "uniform", "--seeds", "2", "--steps", "8",
             "--filters", "seif-k8,ekf", "--out", str(out), "--quiet", "--no-save-episodes",
-            "--paired-against", "random", "--paired-metrics", "anees_pose,final_map_error"]  # fmt: skip
+            "--paired-against", "random", "--paired-metrics", "anees_pose,final_map_error",
+            "--paired-relative-to", "ekf"]  # fmt: skip
     assert main(argv) == 0
     with (out / "paired.csv").open() as handle:
         rows = list(csv.DictReader(handle))
     assert [(r["filter"], r["metric"], r["policy"]) for r in rows] == [
         ("seif-k8", "anees_pose", "still"), ("seif-k8", "final_map_error", "still"),
         ("ekf", "anees_pose", "still"), ("ekf", "final_map_error", "still"),
+        ("seif-k8 − ekf", "anees_pose", "still"), ("seif-k8 − ekf", "final_map_error", "still"),
     ]  # fmt: skip
     assert all(r["n"] == "2" and r["reference"] == "random" for r in rows)
     assert "### anees_pose: policy − random" in (out / "paired.md").read_text()
     with pytest.raises(SystemExit):
-        main([*argv[:-4], "--paired-against", "nobody"])
+        main([*argv[:-6], "--paired-against", "nobody"])
     assert "--paired-against" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        main([*argv[:-2], "--paired-relative-to", "eif"])
+    assert "--paired-relative-to" in capsys.readouterr().err

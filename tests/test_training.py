@@ -435,7 +435,7 @@ def test_shipped_policy_loads_and_beats_random_on_ten_seeds():
     assert max(ppo) < np.mean(random), (ppo, random)
 
 
-@pytest.mark.parametrize("name", ["ppo_seif_explore.zip", "ppo_adversary.zip"])
+@pytest.mark.parametrize("name", ["ppo_seif_explore.zip", "ppo_adversary.zip", "ppo_adversary_v1.zip"])
 def test_shipped_models_match_the_env_spaces(name):
     env = gym.make("SeifExplore-v0")
     agent = SB3Agent(POLICIES / name, env=env)

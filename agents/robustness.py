@@ -55,7 +55,14 @@ import numpy as np
 
 import seif_gym  # noqa: F401  (registers the environments)
 from agents.baselines import BASELINES, Agent
-from agents.evaluate import agent_labels, build_agent, check_agent_spec, paired_difference, run_episode
+from agents.evaluate import (
+    agent_labels,
+    build_agent,
+    check_agent_spec,
+    paired_difference,
+    paired_verdict,
+    run_episode,
+)
 from agents.parallel import Executor, chunks
 from agents.parallel import add_arguments as add_executor_arguments
 from agents.parallel import from_arguments as executor_from_arguments
@@ -83,6 +90,14 @@ DEFAULT_POLICIES: tuple[str, ...] = BASELINES
 
 #: Metrics of :func:`paired_policies` by default (columns of :data:`seif_gym.evaluate.RESULT_COLUMNS`).
 PAIRED_METRICS: tuple[str, ...] = ("anees_pose", "anees_relative", "final_map_error", "pose_rmse")
+
+#: :func:`agents.evaluate.paired_verdict` (lower is better) in the neutral words of a comparison of policies.
+_DIRECTION: dict[str, str] = {
+    "beats": "lower",
+    "worse": "higher",
+    "tie (interval holds 0)": "tie",
+    "n/a (one seed)": "tie",
+}
 
 #: Columns of :func:`paired_policies`' rows (``paired.csv``).
 PAIRED_COLUMNS: tuple[str, ...] = (
@@ -317,7 +332,7 @@ def paired_policies(
                 a, b = np.array(pairs).T
                 stats = paired_difference(a, b, bootstrap=bootstrap)
                 low, high = stats["ci95_low"], stats["ci95_high"]
-                verdict = "tie" if low is None or low <= 0.0 <= high else ("higher" if low > 0.0 else "lower")
+                verdict = _DIRECTION[paired_verdict(stats)]
                 ratio = ratio_low = ratio_high = None
                 if relative_to is None and metric.startswith("anees") and np.all(a > 0.0) and np.all(b > 0.0):
                     logs = paired_difference(np.log(a), np.log(b))
@@ -495,6 +510,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         filter_labels = [spec.label for spec in specs]
         if args.paired_relative_to is not None and args.paired_relative_to not in filter_labels:
             parser.error(f"--paired-relative-to: {args.paired_relative_to!r} is not one of --filters")
+    elif args.paired_relative_to is not None:
+        parser.error("--paired-relative-to needs --paired-against")
     executor = executor_from_arguments(args, parser)
     out = Path(args.out)
     limit_blas_threads(1)

@@ -246,3 +246,6 @@ def test_paired_against_writes_paired_tables(tmp_path, capsys):
     with pytest.raises(SystemExit):
         main([*argv[:-2], "--paired-relative-to", "eif"])
     assert "--paired-relative-to" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        main([*argv[:-6], "--paired-relative-to", "ekf"])
+    assert "needs --paired-against" in capsys.readouterr().err

@@ -92,6 +92,14 @@ def episode_digest(env: gym.Env, policy: str, steps: int) -> str:
     return digest.hexdigest()[:16]
 
 
+def case_digest(env_id: str, kwargs: dict, policy: str) -> str:
+    """:func:`episode_digest` of one case of :data:`V0_DIGESTS` (300 random steps, or 400 of the weave)."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", DeprecationWarning)  # gymnasium: "-v0 is out of date"
+        env = gym.make(env_id, **kwargs)
+    return episode_digest(env, policy, 300 if policy == "random" else 400)
+
+
 @pytest.mark.parametrize(
     "env_id, kwargs, policy, expected", V0_DIGESTS, ids=[f"{d[0]}-{d[2]}-{d[1]}" for d in V0_DIGESTS]
 )
@@ -101,11 +109,7 @@ def test_v0_reproduces_seif_gym_0_1(env_id, kwargs, policy, expected):
         pytest.fail(
             f"no seif_gym 0.1 digests recorded for OpenBLAS kernels {architecture!r}: record them (module docstring)"
         )
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", DeprecationWarning)  # gymnasium: "-v0 is out of date"
-        env = gym.make(env_id, **kwargs)
-    steps = 300 if policy == "random" else 400
-    assert episode_digest(env, policy, steps) == expected[KERNEL_FAMILIES[architecture]]
+    assert case_digest(env_id, kwargs, policy) == expected[KERNEL_FAMILIES[architecture]]
 
 
 def test_every_case_has_a_digest_for_every_family():
@@ -143,7 +147,4 @@ def test_v1_recovery_differs_from_v0():
 if __name__ == "__main__":  # print this machine's kernel architecture and the digests of the seif_gym on PYTHONPATH
     print(f"OpenBLAS kernels: {blas_architecture()} ({seif_gym.__file__})")
     for env_id, kwargs, policy, _ in V0_DIGESTS:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", DeprecationWarning)
-            made = gym.make(env_id, **kwargs)
-        print(env_id, kwargs, policy, episode_digest(made, policy, 300 if policy == "random" else 400))
+        print(env_id, kwargs, policy, case_digest(env_id, kwargs, policy))

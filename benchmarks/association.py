@@ -90,6 +90,7 @@ def run_one(
     return {
         "agree": audit.agree, "total": audit.total, "discarded": audit.discarded,
         "duplicates": audit.duplicates, "true_landmarks": audit.true_landmarks,
+        "started": audit.duplicates_started, "merged": audit.merges_right, "wrong_merges": audit.merges_wrong,
         "pose_error": error, "seconds": float(np.sum(times[1:])), "scans": len(times) - 1,
         "max_seconds": float(np.max(times[1:])),
     }  # fmt: skip
@@ -132,7 +133,7 @@ def main(argv: list[str] | None = None) -> int:
     print(f"# {' '.join([sys.executable.split('/')[-1], *sys.argv])}")
     print(f"# seeds 0..{args.seeds - 1}; {time.perf_counter() - started:.0f} s")
     header = f"{'scenario':18s} {'filter':6s} {'correct %':>9s} {'dup %':>6s} {'disc %':>6s} {'pose err m':>10s} " \
-             f"{'ms/scan':>7s} {'max ms':>7s}"  # fmt: skip
+             f"{'ms/scan':>7s} {'max ms':>7s} {'started':>7s} {'merged':>6s} {'wrong':>5s}"  # fmt: skip
     print(header)
     print("-" * len(header))
 
@@ -142,7 +143,8 @@ def main(argv: list[str] | None = None) -> int:
             f"{label:18s} {name:6s} {100 * s['agree'] / s['total']:9.2f} "
             f"{100 * s['duplicates'] / s['true_landmarks']:6.2f} {100 * s['discarded'] / s['total']:6.2f} "
             f"{s['pose_error'] / len(rows):10.2f} {1e3 * s['seconds'] / s['scans']:7.2f} "
-            f"{1e3 * max(r['max_seconds'] for r in rows):7.1f}"
+            f"{1e3 * max(r['max_seconds'] for r in rows):7.1f} {s['started']:7.0f} {s['merged']:6.0f} "
+            f"{s['wrong_merges']:5.0f}"
         )
 
     for scenario in scenarios:

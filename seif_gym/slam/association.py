@@ -69,6 +69,13 @@ Algorithm, per scan (Probabilistic Robotics, sections 10.3 and 12.7)
    ambiguous and discarded with id ``-1``. With ``min_separation`` a
    measurement that projects closer than that to a mapped landmark is never
    a new landmark either (a prior on the map: real trees are not 1 m apart).
+8. **Merges** (``loop_merge``, off by default). Every ``merge_every`` scans
+   the landmarks started lately are matched against those started a loop
+   ago by a rigid motion within a loop's drift (:func:`rigid_submap_match`);
+   each inlier of a distinctive match is merged into its old landmark
+   (``filt.merge_landmarks``). This takes back the duplicates a filter
+   starts when it is too confident to accept a closure (the SEIF's), using
+   the map's geometry rather than the covariance that failed.
 
 For SEIF-type filters the covariance of step 2 comes from
 :func:`seif_gym.slam.marginals.breadth_first_joint_covariance` (a block of at
@@ -128,7 +135,15 @@ if TYPE_CHECKING:  # for annotations only
     from seif_gym.slam.base import SlamFilter
     from seif_gym.slam.models import RangeBearingSensor
 
-__all__ = ["ASSOCIATOR_PRESETS", "Associator", "AssociationStats", "AssociationAudit", "jcbb", "make_associator"]
+__all__ = [
+    "ASSOCIATOR_PRESETS",
+    "Associator",
+    "AssociationStats",
+    "AssociationAudit",
+    "jcbb",
+    "make_associator",
+    "rigid_submap_match",
+]
 
 
 #: Cost of a forbidden pair in the assignment problem (far above any gated cost).
@@ -622,6 +637,76 @@ def conditional_loglik(nu: FloatArray, cov: FloatArray, pairs: IntArray) -> Floa
     return out
 
 
+def rigid_submap_match(
+    recent: FloatArray, old: FloatArray, tolerance: float, max_rotation: float, max_shift: float
+) -> tuple[list[tuple[int, int]], int]:
+    """The rigid motion that lays most of ``recent`` onto ``old``, within the drift bounds.
+
+    Every pair of ``recent`` points (more than 1 m apart) is matched with
+    every pair of ``old`` points at the same distance (within ``tolerance``),
+    both ways round; each such match fixes a rotation and a translation. One
+    is kept when its rotation is within ``max_rotation`` (radians) and it
+    moves the centroid of ``recent`` by at most ``max_shift`` (metres): a
+    loop's drift, not an arbitrary motion. Its inliers are the ``recent``
+    points that land within ``tolerance`` of an ``old`` one, one to one.
+
+    Parameters
+    ----------
+    recent, old : ndarray, shape (a, 2), (b, 2)
+        Estimated positions: landmarks started lately, and landmarks mapped
+        long ago, near the robot.
+    tolerance, max_rotation, max_shift : float
+        As above.
+
+    Returns
+    -------
+    pairs : list of (int, int)
+        ``(row of recent, row of old)`` of the best hypothesis's inliers.
+    second : int
+        Inliers of the best hypothesis that shares no pair with it (how
+        distinctive the match is).
+    """
+    if len(recent) < 2 or len(old) < 2:
+        return [], 0
+    ri, rj = np.triu_indices(len(recent), 1)
+    oi, oj = np.triu_indices(len(old), 1)
+    recent_gap = np.linalg.norm(recent[ri] - recent[rj], axis=1)
+    old_gap = np.linalg.norm(old[oi] - old[oj], axis=1)
+    wide = recent_gap > 1.0
+    ri, rj, recent_gap = ri[wide], rj[wide], recent_gap[wide]
+    a, b = np.nonzero(np.abs(recent_gap[:, None] - old_gap[None, :]) < tolerance)
+    if len(a) == 0:
+        return [], 0
+    # both orientations of each old pair
+    start = np.concatenate([recent[ri[a]], recent[ri[a]]])
+    end = np.concatenate([recent[rj[a]], recent[rj[a]]])
+    to_start = np.concatenate([old[oi[b]], old[oj[b]]])
+    to_end = np.concatenate([old[oj[b]], old[oi[b]]])
+    u, v = end - start, to_end - to_start
+    rotation = np.arctan2(v[:, 1], v[:, 0]) - np.arctan2(u[:, 1], u[:, 0])
+    rotation = (rotation + np.pi) % (2.0 * np.pi) - np.pi
+    cos, sin = np.cos(rotation), np.sin(rotation)
+    shift = to_start - np.column_stack([cos * start[:, 0] - sin * start[:, 1], sin * start[:, 0] + cos * start[:, 1]])
+    centre = recent.mean(axis=0)
+    moved_centre = np.column_stack([cos * centre[0] - sin * centre[1], sin * centre[0] + cos * centre[1]]) + shift
+    plausible = (np.abs(rotation) <= max_rotation) & (np.hypot(*(moved_centre - centre).T) <= max_shift)
+    hypotheses: list[tuple[int, frozenset[tuple[int, int]]]] = []
+    for h in np.flatnonzero(plausible).tolist():
+        moved = recent @ np.array([[cos[h], sin[h]], [-sin[h], cos[h]]]) + shift[h]
+        distance = np.linalg.norm(moved[:, None, :] - old[None, :, :], axis=2)
+        nearest = distance.argmin(axis=1)
+        close = np.flatnonzero(distance[np.arange(len(recent)), nearest] < tolerance)
+        if len(np.unique(nearest[close])) < len(close):
+            continue  # two recent landmarks on one old one: not a rigid copy
+        hypotheses.append((len(close), frozenset(zip(close.tolist(), nearest[close].tolist()))))
+    if not hypotheses:
+        return [], 0
+    hypotheses.sort(key=lambda item: -item[0])
+    best = hypotheses[0][1]
+    second = max((count for count, pairs in hypotheses if not pairs & best), default=0)
+    return sorted(best), second
+
+
 class CoverageGrid:
     """How often each cell of a uniform grid lay well inside the sensor's footprint (a dict of cells).
 
@@ -678,6 +763,8 @@ class AssociationStats:
     scans: int = 0
     #: loop-closing pairs deferred (their measurements discarded) for want of enough of them in one scan
     deferred: int = 0
+    #: landmarks merged into others (``loop_merge``)
+    merged: int = 0
     #: sum of the Mahalanobis distances ``d2`` of the associated measurements
     nis_sum: float = 0.0
 
@@ -708,6 +795,20 @@ class _Signatures:
         self.count[landmark_id] = n
         self.mean[landmark_id] = mean
         self.m2[landmark_id] = self.m2.get(landmark_id, 0.0) + delta * (value - mean)
+
+    def merge(self, keep: int, remove: int) -> None:
+        """Pool ``remove``'s statistics into ``keep``'s (Chan et al.'s parallel update) and drop ``remove``."""
+        n_b = self.count.pop(remove, 0)
+        mean_b, m2_b = self.mean.pop(remove, 0.0), self.m2.pop(remove, 0.0)
+        n_a = self.count.get(keep, 0)
+        if n_b == 0:
+            return
+        mean_a, m2_a = self.mean.get(keep, 0.0), self.m2.get(keep, 0.0)
+        n = n_a + n_b
+        delta = mean_b - mean_a
+        self.count[keep] = n
+        self.mean[keep] = mean_a + delta * n_b / n
+        self.m2[keep] = m2_a + m2_b + delta**2 * n_a * n_b / n
 
 
 class Associator:
@@ -772,6 +873,28 @@ class Associator:
     closure_window : int
         Scans over which proposed closing pairs count towards
         ``closure_pairings``.
+    loop_merge : bool
+        Revise the association (step 8): fold landmarks started lately into
+        old ones when a rigid copy of the old map shows. Needs a filter that
+        merges landmarks (``supports_merge``: EKF, EIF, SEIF, ESEIF); off by
+        default (the envs' ``-v0``/``-v1`` association does not merge).
+    merge_every : int
+        Scans between two searches for a copy.
+    merge_recent : int
+        A landmark started within this many scans is *recent*; one last
+        associated more than ``closure_age`` scans ago is *old*.
+    merge_radius : float
+        Metres: both sets are taken within this distance of the robot.
+    merge_tolerance : float
+        Metres: an inlier lands this close to its old landmark.
+    merge_inliers : int
+        Inliers needed to merge.
+    merge_margin : int
+        The best match needs this many inliers more than the best match that
+        shares no pair with it.
+    merge_rotation, merge_shift : float
+        Degrees and metres: the largest drift (rotation, and motion of the
+        recent landmarks' centroid) a copy may show.
 
     Notes
     -----
@@ -801,6 +924,15 @@ class Associator:
         closure_age: int = 60,
         closure_pairings: int = 2,
         closure_window: int = 40,
+        loop_merge: bool = False,
+        merge_every: int = 10,
+        merge_recent: int = 40,
+        merge_radius: float = 15.0,
+        merge_tolerance: float = 0.3,
+        merge_inliers: int = 4,
+        merge_margin: int = 2,
+        merge_rotation: float = 10.0,
+        merge_shift: float = 3.0,
     ) -> None:
         for name, value in (("gate", gate), ("new_landmark", new_landmark)):
             if not isinstance(value, (int, float)) or not 0.0 < float(value) < 1.0:
@@ -829,6 +961,10 @@ class Associator:
             ("closure_age", closure_age, 0),
             ("closure_pairings", closure_pairings, 1),
             ("closure_window", closure_window, 0),
+            ("merge_every", merge_every, 1),
+            ("merge_recent", merge_recent, 1),
+            ("merge_inliers", merge_inliers, 2),
+            ("merge_margin", merge_margin, 0),
         ):
             if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < low:
                 raise ValueError(f"{name} must be an int >= {low}, got {value!r}")
@@ -854,6 +990,25 @@ class Associator:
         self.closure_age = int(closure_age)
         self.closure_pairings = int(closure_pairings)
         self.closure_window = int(closure_window)
+        for name, value in (("merge_radius", merge_radius), ("merge_tolerance", merge_tolerance),
+                            ("merge_rotation", merge_rotation), ("merge_shift", merge_shift)):  # fmt: skip
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0.0 < float(value) < math.inf:
+                raise ValueError(f"{name} must be a positive finite number, got {value!r}")
+        if not isinstance(loop_merge, bool):
+            raise TypeError(f"loop_merge must be a bool, got {type(loop_merge).__name__}")
+        self.loop_merge = loop_merge
+        self.merge_every = int(merge_every)
+        self.merge_recent = int(merge_recent)
+        self.merge_radius = float(merge_radius)
+        self.merge_tolerance = float(merge_tolerance)
+        self.merge_inliers = int(merge_inliers)
+        self.merge_margin = int(merge_margin)
+        self.merge_rotation = float(merge_rotation)
+        self.merge_shift = float(merge_shift)
+        #: landmark id -> the scan that started it
+        self.started: dict[int, int] = {}
+        #: ``(kept id, removed id)`` of the merges made by the last :meth:`associate`, before its scan
+        self.merges: list[tuple[int, int]] = []
         self._proposals: deque[tuple[int, int]] = deque()  # (scan, landmark id) of recent closing pairs
         #: landmark id -> index of the last scan that associated a measurement with it (or created it)
         self.last_seen: dict[int, int] = {}
@@ -968,6 +1123,7 @@ class Associator:
             discarded ones. New ids are allocated here (``next_id``); the
             measurement that created each is in :attr:`created`.
         """
+        self.merges = self._merge_copies(filt) if self.loop_merge else []
         ranges = np.asarray(ranges, dtype=np.float64)  # for len(); _pairs converts it anyway
         m = len(ranges)
         ids = np.full(m, -1, dtype=np.int64)
@@ -1017,6 +1173,8 @@ class Associator:
         stats.nis_sum += float(d2[chosen].sum())
         for i in ids[ids >= 0].tolist():
             self.last_seen[i] = stats.scans
+        for i in ids[new].tolist():
+            self.started[i] = stats.scans
         if self.detection > 0.0:
             self._coverage.add_scan(np.asarray(filt.pose, dtype=np.float64), filt.sensor)
         if signatures is not None:
@@ -1024,6 +1182,49 @@ class Associator:
             for k in np.flatnonzero(ids >= 0).tolist():
                 self.signatures.add(int(ids[k]), float(values[k]))
         return ids
+
+    def _merge_copies(self, filt: SlamFilter) -> list[tuple[int, int]]:
+        """Step 8: merge recent landmarks that form a rigid copy of old ones into them (``loop_merge``).
+
+        Every ``merge_every`` scans, the landmarks near the robot started in
+        the last ``merge_recent`` scans are matched against those near it not
+        associated for ``closure_age`` scans (:func:`rigid_submap_match`).
+        With ``merge_inliers`` inliers or more, ``merge_margin`` more than any
+        disjoint alternative, each inlier is merged into its old landmark
+        (``filt.merge_landmarks``). A duplicate started at a loop closure the
+        filter was too confident to accept is taken back this way; the test
+        uses only the map's relative geometry, so it does not rely on the
+        covariance the closure got wrong.
+        """
+        now = self.stats.scans
+        if now == 0 or now % self.merge_every or not getattr(filt, "supports_merge", False):
+            return []
+        ids = filt.landmark_ids
+        if len(ids) < 2 * self.merge_inliers:
+            return []
+        positions = np.asarray(filt.landmarks)
+        pose = np.asarray(filt.pose)
+        near = np.hypot(positions[:, 0] - pose[0], positions[:, 1] - pose[1]) < self.merge_radius
+        id_list = ids.tolist()
+        recent = near & np.array([now - self.started.get(i, -(10**9)) < self.merge_recent for i in id_list])
+        old = near & np.array([now - self.started.get(i, -(10**9)) > self.closure_age for i in id_list])
+        if recent.sum() < self.merge_inliers or old.sum() < self.merge_inliers:
+            return []
+        recent_rows, old_rows = np.flatnonzero(recent), np.flatnonzero(old)
+        pairs, second = rigid_submap_match(positions[recent_rows], positions[old_rows], self.merge_tolerance,
+                                           math.radians(self.merge_rotation), self.merge_shift)  # fmt: skip
+        if len(pairs) < self.merge_inliers or len(pairs) - second < self.merge_margin:
+            return []
+        merges = []
+        for r, o in pairs:
+            keep, remove = id_list[old_rows[o]], id_list[recent_rows[r]]
+            filt.merge_landmarks(keep, remove)
+            merges.append((keep, remove))
+            self.last_seen[keep] = max(self.last_seen.get(keep, 0), self.last_seen.pop(remove, 0))
+            self.started.pop(remove, None)
+            self.signatures.merge(keep, remove)
+        self.stats.merged += len(merges)
+        return merges
 
     def _joint_decision(
         self,
@@ -1106,6 +1307,14 @@ class AssociationAudit:
     landmark for a true landmark that has none yet; a discarded measurement,
     a wrong association or a duplicate landmark is an error.
 
+    Merges (``Associator(loop_merge=True)``) revise the score: a duplicate
+    merged into the landmark of its own true id is a duplicate no more, and
+    the measurement that started it now informs the right landmark (it
+    agrees); a merge of two different true landmarks turns every agreeing
+    measurement of the removed one into an error. The figures are then those
+    of the final map; ``duplicates_started`` keeps the count at the time of
+    the decisions.
+
     Attributes
     ----------
     true_of : dict
@@ -1113,22 +1322,33 @@ class AssociationAudit:
     agree, errors, discarded, total : int
         Counts over everything recorded (``errors`` includes ``discarded``).
     duplicates : int
-        New landmarks started for a true landmark that already had one
+        Landmarks of the map started for a true landmark that already had one
         (each is also counted in ``errors``).
+    duplicates_started : int
+        Duplicates ever started (merged ones included).
+    merges_right, merges_wrong : int
+        Merges of two landmarks of one true id, and of different ones.
     """
 
     def __init__(self) -> None:
         self.true_of: dict[int, int] = {}
         self._mapped: set[int] = set()
         self._seen: set[int] = set()
+        self._duplicate: set[int] = set()  # associator ids started as duplicates, still in the map
+        self._agreeing: dict[int, int] = {}  # associator id -> its agreeing measurements
         self.agree = self.errors = self.discarded = self.total = 0
-        self.duplicates = 0
+        self.duplicates = self.duplicates_started = 0
+        self.merges_right = self.merges_wrong = 0
 
     def record(self, associator: Associator, ids: ArrayLike, true_ids: ArrayLike) -> int:
         """Score one scan: ``ids`` from ``associator.associate``/``update``, ``true_ids`` the truth.
 
-        Returns the number of measurements of this scan that disagree.
+        The merges the associator made before this scan (``associator.merges``)
+        are scored first. Returns the number of measurements of this scan that
+        disagree.
         """
+        for keep, remove in getattr(associator, "merges", ()):  # an associator that merges
+            self._merge(keep, remove)
         ids = np.asarray(ids)  # for len()
         errors = 0
         for k, (given, true) in enumerate(zip(np.asarray(ids).tolist(), np.asarray(true_ids).tolist())):
@@ -1137,17 +1357,40 @@ class AssociationAudit:
                 self.discarded += 1
             elif associator.created.get(given) == k:
                 ok = true not in self._mapped
-                self.duplicates += not ok
+                if not ok:
+                    self.duplicates += 1
+                    self.duplicates_started += 1
+                    self._duplicate.add(given)
                 self.true_of[given] = true
                 self._mapped.add(true)
             else:
                 ok = self.true_of.get(given) == true
+            if ok and given >= 0:
+                self._agreeing[given] = self._agreeing.get(given, 0) + 1
             errors += not ok
         self._seen.update(np.asarray(true_ids).tolist())
         self.total += len(ids)
         self.errors += errors
         self.agree += len(ids) - errors
         return errors
+
+    def _merge(self, keep: int, remove: int) -> None:
+        agreeing = self._agreeing.pop(remove, 0)
+        if self.true_of.get(keep) == self.true_of.get(remove):
+            self.merges_right += 1
+            if remove in self._duplicate:  # its first measurement now informs its own landmark
+                self.duplicates -= 1
+                self.errors -= 1
+                self.agree += 1
+                agreeing += 1
+            self._agreeing[keep] = self._agreeing.get(keep, 0) + agreeing
+        else:
+            self.merges_wrong += 1
+            self.errors += agreeing
+            self.agree -= agreeing
+            if remove in self._duplicate:
+                self.duplicates -= 1  # no longer a landmark of the map (its measurements are errors now)
+        self._duplicate.discard(remove)
 
     @property
     def true_landmarks(self) -> int:

@@ -68,6 +68,37 @@ def symmetrized(matrix: FloatArray) -> FloatArray:
     return 0.5 * (matrix + matrix.T)
 
 
+def merge_dense_rows(matrix: FloatArray, vectors: tuple[FloatArray, ...], dim: int, keep: int, remove: int) -> None:
+    """``P^T M P`` and ``P^T v`` in place on a dense state matrix, then swap-remove ``remove``.
+
+    ``matrix`` (an information matrix, or any array whose rows and columns
+    follow the state) gets landmark ``remove``'s rows and columns added to
+    landmark ``keep``'s; each of ``vectors`` gets its entries added likewise.
+    Then the last landmark's rows, columns and entries move into ``remove``'s
+    place and the last two of ``dim`` are zeroed. ``vectors`` may be empty.
+    """
+    a, b = 3 + 2 * keep, 3 + 2 * remove
+    matrix[a : a + 2, :dim] += matrix[b : b + 2, :dim]
+    matrix[:dim, a : a + 2] += matrix[:dim, b : b + 2]
+    for vector in vectors:
+        vector[a : a + 2] += vector[b : b + 2]
+    swap_remove_dense(matrix, vectors, dim, remove)
+
+
+def swap_remove_dense(matrix: FloatArray, vectors: tuple[FloatArray, ...], dim: int, remove: int) -> None:
+    """Move the last landmark's rows and columns (and entries of ``vectors``) into ``remove``'s; zero the last."""
+    b, last = 3 + 2 * remove, dim - 2
+    if b != last:
+        matrix[b : b + 2, :dim] = matrix[last:dim, :dim]
+        matrix[:dim, b : b + 2] = matrix[:dim, last:dim]
+        for vector in vectors:
+            vector[b : b + 2] = vector[last:dim]
+    matrix[last:dim, :dim] = 0.0
+    matrix[:dim, last:dim] = 0.0
+    for vector in vectors:
+        vector[last:dim] = 0.0
+
+
 class UnknownLandmarkError(KeyError, ValueError):
     """Raised when a landmark id is not in the filter's map."""
 
@@ -163,6 +194,8 @@ class SlamFilter(ABC):
 
     #: Option names and defaults of the subclass.
     OPTIONS: ClassVar[dict[str, Any]] = {}
+    #: Whether :meth:`merge_landmarks` is implemented.
+    supports_merge: ClassVar[bool] = False
 
     def __init__(
         self,
@@ -394,6 +427,53 @@ class SlamFilter(ABC):
         n = len(self._id_to_index)
         for landmark_id in self._ids[n - count : n].tolist():
             del self._id_to_index[landmark_id]
+
+    def merge_landmarks(self, keep_id: int | np.integer, remove_id: int | np.integer) -> None:
+        r"""Declare two mapped landmarks one and the same: condition on ``m_keep = m_remove``, drop ``remove_id``.
+
+        The data association's way of taking back a duplicate: a landmark
+        started for a measurement of one already in the map (for example at a
+        loop closure the filter was too confident to accept) is folded into
+        the old one once the evidence shows they coincide
+        (:class:`~seif_gym.slam.association.Associator`, ``loop_merge``).
+
+        Parameters
+        ----------
+        keep_id, remove_id : int
+            Ids of two distinct mapped landmarks. ``keep_id`` stays;
+            ``remove_id`` leaves the map and the landmark last in the state
+            order takes its place (:meth:`landmark_index` changes for that one).
+
+        Notes
+        -----
+        The constraint is linear, so the merge is exact for the belief: with
+        ``P`` the map from the reduced state to the full one that copies
+        ``m_keep`` into ``m_remove`` (Thrun et al., IJRR 2004, the SEIF's
+        correspondence merge),
+
+        .. math:: \Omega' = P^T \Omega P, \qquad \xi' = P^T \xi,
+
+        which adds ``m_remove``'s rows and columns of ``Omega`` and ``xi`` into
+        ``m_keep``'s. In covariance form (the EKF) the same belief is the
+        conditioning on the noise-free measurement ``m_remove - m_keep = 0``
+        followed by the marginalization of ``m_remove``. Fails with the filter
+        untouched, like an update.
+        """
+        i, j = self.landmark_index(keep_id), self.landmark_index(remove_id)
+        if i == j:
+            raise ValueError(f"keep_id and remove_id must name different landmarks, got {keep_id!r} twice")
+        self._merge(i, j)
+        # id bookkeeping: the last landmark takes the removed one's place in the state order
+        last = self.num_landmarks - 1
+        last_id = int(self._ids[last])
+        del self._id_to_index[int(remove_id)]
+        if j != last:
+            self._ids[j] = last_id
+            self._id_to_index[last_id] = j
+
+    def _merge(self, keep: int, remove: int) -> None:
+        """:meth:`merge_landmarks` on state orders (``remove`` then swap-removed); atomic."""
+        raise NotImplementedError(f"{type(self).__name__} does not merge landmarks")
 
     def landmark_index(self, landmark_id: int | np.integer) -> int:
         """Order of landmark ``landmark_id`` in the state (0 for the first landmark)."""

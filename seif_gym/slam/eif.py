@@ -26,7 +26,13 @@ import scipy.linalg
 import scipy.sparse
 from numpy.typing import NDArray
 
-from seif_gym.slam.base import INITIAL_LANDMARK_CAPACITY, InformationForm, SlamFilter, symmetrized
+from seif_gym.slam.base import (
+    INITIAL_LANDMARK_CAPACITY,
+    InformationForm,
+    SlamFilter,
+    merge_dense_rows,
+    symmetrized,
+)
 from seif_gym.slam.models import wrap_angle
 from seif_gym.type_aliases import FloatArray
 
@@ -105,6 +111,7 @@ class EIF(SlamFilter, InformationForm):
     """
 
     OPTIONS = {}
+    supports_merge = True
 
     # -- storage -------------------------------------------------------------
     def _initialize(self, pose: FloatArray, pose_cov: FloatArray) -> None:
@@ -135,6 +142,29 @@ class EIF(SlamFilter, InformationForm):
         info_vector[:used] = self._info_vector[:used]
         mean[:used] = self._state_mean[:used]
         self._information, self._info_vector, self._state_mean = information, info_vector, mean
+
+    def _merge(self, keep: int, remove: int) -> None:
+        """``Omega <- P^T Omega P``, ``xi <- P^T xi`` (``SlamFilter.merge_landmarks``), then the exact mean."""
+        dim, new_dim = self._dim, self._dim - 2
+        information = self._information[:dim, :dim].copy()
+        info_vector = self._info_vector[:dim].copy()
+        merge_dense_rows(information, (info_vector,), dim, keep, remove)
+        information, info_vector = information[:new_dim, :new_dim], info_vector[:new_dim]
+        factor = scipy.linalg.cho_factor(information, lower=True, check_finite=False)
+        mean = scipy.linalg.cho_solve(factor, info_vector, check_finite=False)
+        wrapped_heading = wrap_angle(float(mean[2]))
+        if wrapped_heading != mean[2]:
+            mean[2] = wrapped_heading
+            info_vector = information @ mean
+        # commit
+        self._information[:dim, :dim] = 0.0
+        self._information[:new_dim, :new_dim] = information
+        self._info_vector[:dim] = 0.0
+        self._info_vector[:new_dim] = info_vector
+        self._state_mean[:dim] = 0.0
+        self._state_mean[:new_dim] = mean
+        self._dim = new_dim
+        self._cholesky = factor
 
     # -- filter steps ----------------------------------------------------------
     def _predict(self, control: FloatArray, dt: float) -> None:

@@ -15,7 +15,7 @@ import numpy as np
 import scipy.linalg
 from numpy.typing import NDArray
 
-from seif_gym.slam.base import INITIAL_LANDMARK_CAPACITY, SlamFilter, symmetrized
+from seif_gym.slam.base import INITIAL_LANDMARK_CAPACITY, SlamFilter, swap_remove_dense, symmetrized
 from seif_gym.slam.models import wrap_angle
 from seif_gym.type_aliases import FloatArray
 
@@ -79,6 +79,7 @@ class EKF(SlamFilter):
     """
 
     OPTIONS = {}
+    supports_merge = True
 
     # -- storage -------------------------------------------------------------
     def _initialize(self, pose: FloatArray, pose_cov: FloatArray) -> None:
@@ -103,6 +104,29 @@ class EKF(SlamFilter):
         mean[: self._dim] = self._state_mean[: self._dim]
         cov[: self._dim, : self._dim] = self._state_cov[: self._dim, : self._dim]
         self._state_mean, self._state_cov = mean, cov
+
+    def _merge(self, keep: int, remove: int) -> None:
+        """Condition on ``m_remove - m_keep = 0`` (a noise-free measurement), then drop ``m_remove``; O(n^2).
+
+        With ``H`` picking ``m_remove - m_keep``: ``K = Sigma H^T (H Sigma H^T)^-1``,
+        ``mu -= K H mu``, ``Sigma -= K H Sigma`` (``SlamFilter.merge_landmarks``).
+        """
+        dim = self._dim
+        mean, cov = self._state_mean[:dim], self._state_cov[:dim, :dim]
+        a, b = 3 + 2 * keep, 3 + 2 * remove
+        cross = cov[:, b : b + 2] - cov[:, a : a + 2]  # Sigma H^T
+        innovation_cov = symmetrized(cross[b : b + 2] - cross[a : a + 2])  # H Sigma H^T
+        gain = scipy.linalg.solve(innovation_cov, cross.T, assume_a="pos", check_finite=False).T
+        new_mean = mean - gain @ (mean[b : b + 2] - mean[a : a + 2])
+        new_cov = symmetrized(cov - gain @ cross.T)
+        if not (np.all(np.isfinite(new_mean)) and np.all(np.isfinite(new_cov))):
+            raise np.linalg.LinAlgError("merge_landmarks: the conditioned belief is not finite")
+        new_mean[2] = wrap_angle(float(new_mean[2]))
+        # commit
+        mean[:] = new_mean
+        cov[:] = new_cov
+        swap_remove_dense(self._state_cov, (self._state_mean,), dim, remove)
+        self._dim = dim - 2
 
     # -- filter steps ----------------------------------------------------------
     def _predict(self, control: FloatArray, dt: float) -> None:

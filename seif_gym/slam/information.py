@@ -214,6 +214,81 @@ class InformationStore:
                     self.neighbour_count[i] += 1
                 self.neighbour_info[i, slot] = block
 
+    # -- merging two landmarks ------------------------------------------------------
+    def _unlink(self, owner: int, other: int) -> None:
+        """Drop ``other`` from ``owner``'s neighbour list (the last entry takes its slot)."""
+        slot = self.find_neighbour(owner, other)
+        if slot < 0:
+            return
+        last = int(self.neighbour_count[owner]) - 1
+        self.neighbour_index[owner, slot] = self.neighbour_index[owner, last]
+        self.neighbour_info[owner, slot] = self.neighbour_info[owner, last]
+        self.neighbour_index[owner, last] = -1
+        self.neighbour_info[owner, last] = 0.0
+        self.neighbour_count[owner] = last
+
+    def _add_link(self, owner: int, other: int, block: FloatArray) -> None:
+        """``Omega_{owner, other} += block`` (stored in ``owner``'s list; room reserved by the caller)."""
+        slot = self.find_neighbour(owner, other)
+        if slot < 0:
+            slot = int(self.neighbour_count[owner])
+            self.neighbour_index[owner, slot] = other
+            self.neighbour_count[owner] += 1
+        self.neighbour_info[owner, slot] += block
+
+    def merge(self, keep: int, remove: int) -> None:
+        """``Omega <- P^T Omega P``, ``xi <- P^T xi`` for ``m_keep = m_remove``, then swap-remove ``remove``.
+
+        ``remove``'s robot link, diagonal block, links and information vector
+        are added to ``keep``'s (``keep``'s diagonal also takes the link between
+        the two, both ways); the last landmark then moves into ``remove``'s
+        place. Time in the neighbour counts of the two landmarks and of the
+        last one; ``keep``'s mean is left as it was (the filter's recovery
+        moves it).
+        """
+        i, j = keep, remove
+        count = int(self.neighbour_count[j])
+        neighbours = self.neighbour_index[j, :count].copy()
+        blocks = self.neighbour_info[j, :count].copy()  # Omega_{j, k}
+        # room first (growth keeps the contents), so that nothing below can fail half-way
+        self.reserve_degree(np.array([i], dtype=np.int64), count)
+        self.reserve_degree(neighbours, 1)
+        diagonal = self.landmark_info[i] + self.landmark_info[j]
+        for k, block in zip(neighbours.tolist(), blocks):
+            if k == i:
+                diagonal = diagonal + block + block.T  # Omega_{j,i} + Omega_{i,j}
+                continue
+            self._add_link(i, k, block)
+            self._add_link(k, i, block.T)
+            self._unlink(k, j)
+        self._unlink(i, j)
+        self.landmark_info[i] = 0.5 * (diagonal + diagonal.T)
+        self.robot_links[i] += self.robot_links[j]
+        self.information_vector[3 + 2 * i : 5 + 2 * i] += self.information_vector[3 + 2 * j : 5 + 2 * j]
+        self.neighbour_count[j] = 0
+        self.neighbour_index[j] = -1
+        self.swap_remove(j)
+
+    def swap_remove(self, remove: int) -> None:
+        """Delete landmark ``remove``, which must have no links left; the last landmark takes its index."""
+        last = self.num_landmarks - 1
+        if remove != last:
+            for k in self.neighbour_index[last, : self.neighbour_count[last]].tolist():
+                self.neighbour_index[k, self.find_neighbour(k, last)] = remove
+            for array in (self.robot_links, self.landmark_info, self.neighbour_index, self.neighbour_info,
+                          self.neighbour_count):  # fmt: skip
+                array[remove] = array[last]
+            for vector in (self.information_vector, self.mean):
+                vector[3 + 2 * remove : 5 + 2 * remove] = vector[3 + 2 * last : 5 + 2 * last]
+        self.robot_links[last] = 0.0
+        self.landmark_info[last] = 0.0
+        self.neighbour_index[last] = -1
+        self.neighbour_info[last] = 0.0
+        self.neighbour_count[last] = 0
+        self.information_vector[3 + 2 * last : 5 + 2 * last] = 0.0
+        self.mean[3 + 2 * last : 5 + 2 * last] = 0.0
+        self.num_landmarks = last
+
     # -- export ----------------------------------------------------------------
     def to_sparse(self) -> scipy.sparse.csr_array:
         """``Omega`` as a ``scipy.sparse.csr_array`` in state order (O(nnz), vectorised)."""

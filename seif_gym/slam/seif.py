@@ -752,6 +752,7 @@ class SEIF(SlamFilter, SparseInformationForm):
     MEAN_RECOVERIES: ClassVar[tuple[str, ...]] = ("wavefront", "amortized", "exact")
     #: Counters of subclasses that a failed step restores with the rest.
     _COUNTERS: ClassVar[tuple[str, ...]] = ()
+    supports_merge = True
     #: The backend of each ``implementation``.
     BACKENDS: ClassVar[dict[str, SEIFBackend]] = {"compiled": CompiledSEIFBackend(),
                                                   "reference": ReferenceSEIFBackend()}  # fmt: skip
@@ -819,6 +820,74 @@ class SEIF(SlamFilter, SparseInformationForm):
         delta, jacobian, noise = self._linearize(store.mean[:3], control, dt)
         self._backend.motion_update(store, self._active, delta, jacobian, noise)
         _rewrap_heading(store, self._active)
+
+    # -- merging two landmarks (data association's revision) --------------------------
+    def _merge(self, keep: int, remove: int) -> None:
+        """``InformationStore.merge`` plus the active set, the recovery queue and the bookkeeping.
+
+        At most ``k`` robot links stay: the merged landmark is active when
+        either was (one active landmark fewer when both were). ``keep``'s mean
+        is relaxed once against its neighbours and their neighbourhood is
+        queued, so that the wavefront carries the correction out. Time in the
+        neighbour counts and the recovery queue's length; a failure leaves the
+        filter as it was (the update's journal).
+        """
+        store = self._store
+        last = self.num_landmarks - 1
+        touched = [keep, remove, last]
+        for landmark in (keep, remove, last):
+            touched.extend(store.neighbour_index[landmark, : store.neighbour_count[landmark]].tolist())
+        journal = self._journal = UpdateJournal(self, np.unique(np.array(touched, dtype=np.int64)))
+        try:
+            self._merge_step(keep, remove)
+        except BaseException:
+            journal.restore()
+            raise
+        finally:
+            self._journal = None
+
+    def _merge_step(self, keep: int, remove: int) -> None:
+        store = self._store
+        last = self.num_landmarks - 1
+        queued = self._queue.ordered()
+        was_active = bool(self._is_active[keep] or self._is_active[remove])
+        observed = max(self._last_observed[keep], self._last_observed[remove])
+        store.merge(keep, remove)
+        moved = keep if keep != last else remove  # where ``keep`` is now
+        rename = np.arange(last + 1)
+        rename[last] = remove
+        rename[remove] = -1
+
+        def renamed(indices: IntArray) -> IntArray:
+            out = rename[indices]
+            return out[out >= 0]
+
+        self._is_active[remove] = self._is_active[last]
+        self._last_observed[remove] = self._last_observed[last]
+        self._is_active[last] = False
+        self._last_observed[last] = 0
+        active = renamed(self._active)
+        if was_active and moved not in active:
+            active = np.append(active, moved)
+        self._active = active.astype(np.int64)
+        self._is_active[moved] = was_active
+        self._last_observed[moved] = observed
+        self._round_robin = self._round_robin % max(last, 1)
+        # keep's mean from its own row of Omega mu = xi, the rest held (one block Gauss-Seidel step)
+        count = int(store.neighbour_count[moved])
+        neighbours = store.neighbour_index[moved, :count].copy()
+        rhs = store.information_vector[3 + 2 * moved : 5 + 2 * moved] - store.robot_links[moved].T @ store.mean[:3]
+        for k, block in zip(neighbours.tolist(), store.neighbour_info[moved, :count]):
+            rhs = rhs - block @ store.mean[3 + 2 * k : 5 + 2 * k]
+        store.mean[3 + 2 * moved : 5 + 2 * moved] = np.linalg.solve(store.landmark_info[moved], rhs)
+        queue = RecoveryQueue(store.capacity)
+        for landmark in [*renamed(queued).tolist(), moved, *neighbours.tolist()]:
+            queue.push(int(landmark))
+        self._queue = queue
+        if self.mean_recovery == "exact":
+            if self._journal is not None:
+                self._journal.save_mean()
+            recover_mean_exact(store)
 
     # -- steps 2-4 ---------------------------------------------------------------
     def _update(self, ranges: FloatArray, bearings: FloatArray, indices: IntArray, is_new: NDArray[np.bool_]) -> None:

@@ -332,7 +332,9 @@ def test_individual_preset_reproduces_the_original_associator(filter_class):
 def test_make_associator_presets_and_overrides():
     from seif_gym.slam.association import ASSOCIATOR_PRESETS, make_associator
 
-    assert set(ASSOCIATOR_PRESETS) == {"individual", "joint"}
+    assert set(ASSOCIATOR_PRESETS) == {"individual", "joint", "revisable"}
+    revisable = make_associator("revisable")
+    assert revisable.joint and revisable.loop_merge and revisable.tentative_closures
     individual = make_associator("individual")
     assert not individual.joint and individual.landmark_density == 0.0 and individual.blanket_size == 0
     assert individual.detection == 0.0

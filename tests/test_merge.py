@@ -251,3 +251,50 @@ def test_loop_merge_takes_back_the_seifs_duplicates():
     assert merged.merges_wrong == 0 and merged.merges_right >= 5
     assert merged.duplicates <= plain.duplicates // 3
     assert merged.agreement > plain.agreement
+
+
+@pytest.mark.parametrize("filter_name", ["EKF", "SEIF"])
+def test_revisable_association_meets_the_targets_on_the_loop_runs(filter_name):
+    """All eight ``FIDELITY_SCENARIOS``, seed 0 (no selection): the ``"revisable"`` preset (merges and tentative closures).
+
+    Measured (``python benchmarks/association.py --seeds 1 --options loop_merge=true,tentative_closures=true``):
+    EKF 99.76% correct, 0.24% duplicates, no wrong merge (joint preset: 99.60%, 0.24%); SEIF(k=8) 99.54%,
+    1.22%, one wrong merge (a tentative landmark of an unmapped tree next to an old one, ``rectangle-narrow``;
+    joint preset: 98.78%, 6.20%). Asserted: the issue's targets (>= 99.5%, <= 2%) and no worse than joint.
+    """
+    from tests.test_association import loop_audit
+
+    audits = {preset: [loop_audit(name, 0, filter_name, preset) for name in FIDELITY_SCENARIOS]
+              for preset in ("joint", "revisable")}  # fmt: skip
+    figures = {}
+    for preset, runs in audits.items():
+        figures[preset] = (sum(a.agree for a in runs) / sum(a.total for a in runs),
+                           sum(a.duplicates for a in runs) / sum(a.true_landmarks for a in runs))  # fmt: skip
+    (correct, duplicates), (joint_correct, joint_duplicates) = figures["revisable"], figures["joint"]
+    message = (
+        f"{filter_name}: revisable {correct:.4f}, {duplicates:.4f}; joint {joint_correct:.4f}, {joint_duplicates:.4f}"
+    )
+    assert correct >= 0.995 and duplicates <= 0.02, message
+    assert correct > joint_correct and duplicates <= joint_duplicates, message
+    assert sum(a.merges_wrong for a in audits["revisable"]) <= (0 if filter_name == "EKF" else 1), message
+    # the deferred lone closures are no longer discarded: they started tentative landmarks, merged since
+    assert sum(a.discarded for a in audits["revisable"]) < sum(a.discarded for a in audits["joint"])
+    assert sum(a.associator.stats.merged for a in audits["revisable"]) > 0
+
+
+def test_a_tentative_landmark_is_no_candidate_and_expires():
+    """While tentative, a landmark takes no measurement through the search; after ``closure_window`` it is let go."""
+    motion, sensor, run = make_loop_run(FIDELITY_SCENARIOS["rectangle-narrow"], 0)
+    filt = EKF(motion, sensor, run.initial_pose)
+    associator = Associator(tentative_closures=True, closure_window=5)
+    seen_tentative = False
+    for t in range(run.steps):
+        filt.predict(run.controls[t], run.dt)
+        pending = set(associator.tentatives)
+        meas, landmark, _, _ = associator.distances(filt, run.ranges[t], run.bearings[t])
+        assert not pending & set(filt.landmark_ids[landmark].tolist())
+        associator.update(filt, run.ranges[t], run.bearings[t])
+        seen_tentative |= bool(associator.tentatives)
+        for _, started in associator.tentatives.values():
+            assert associator.stats.scans - started <= associator.closure_window + 1
+    assert seen_tentative

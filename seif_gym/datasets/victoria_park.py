@@ -406,6 +406,8 @@ class RunConfig:
     * ``blanket_neighbours`` 4: strongest links per candidate in the SEIF's
       Markov blanket (bounded block; all links changed no decision here).
     * ``initial_heading_deg`` 36: the usual start heading in the GPS frame.
+    * ``revisable`` False: ``--revisable`` lets the associator take decisions
+      back (merges and tentative closures, the ``"revisable"`` preset).
     """
 
     sigma_speed: float = 0.5
@@ -424,6 +426,7 @@ class RunConfig:
     max_active: int = 8
     blanket_neighbours: bool | int = 4
     initial_heading_deg: float = 36.0
+    revisable: bool = False
 
 
 #: Trunk-diameter signature settings of --signature (Associator's signature_sigma, signature_per_metre).
@@ -589,6 +592,7 @@ def _setup(data: VictoriaPark, filter_name: str, config: RunConfig) -> tuple[Sla
         gate=config.gate, new_landmark=config.new_landmark, candidate_radius=config.candidate_radius,
         min_separation=config.min_separation, signature_sigma=config.signature_sigma,
         signature_per_metre=config.signature_per_metre, neighbours=config.blanket_neighbours,
+        loop_merge=config.revisable, tentative_closures=config.revisable,
     )  # fmt: skip
     return filt, associator
 
@@ -776,7 +780,10 @@ def summary(result: RunResult) -> str:
     if len(ms) >= 2:
         lines.append(f"time per step       {ms[0]:.4f} ms in the first {250} scans, {ms[-1]:.4f} ms in the last")
     stats = result.association
-    lines.append(f"association         {stats.associated} associated, {stats.new} new, {stats.discarded} discarded")
+    lines.append(
+        f"association         {stats.associated} associated, {stats.new} new, {stats.discarded} discarded, "
+        f"{stats.merged} merged"
+    )
     if result.error is not None:
         lines.append(
             f"RMSE vs GPS         {result.error.rmse:.3f} m (rigid 2-D alignment, {result.error.used} GPS fixes; "
@@ -811,6 +818,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--quiet", "--no-progress", dest="quiet", action="store_true",
                         help="no progress bar on stderr")  # fmt: skip
     parser.add_argument("--signature", action="store_true", help="gate on the trunk diameter too")
+    parser.add_argument(
+        "--revisable",
+        action="store_true",
+        help="merge duplicates back and keep deferred lone closures as tentative landmarks",
+    )
     parser.add_argument("--max-active", type=int, default=RunConfig.max_active, help="SEIF/ESEIF active landmarks")
     parser.add_argument("--blas-threads", type=int, default=1, help="BLAS threads (default 1; 0 leaves BLAS alone)")
     args = parser.parse_args(argv)
@@ -821,7 +833,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     except (FileNotFoundError, ValueError) as error:
         print(f"error: {error}", file=sys.stderr)
         return 2
-    config = RunConfig(max_active=args.max_active)
+    config = RunConfig(max_active=args.max_active, revisable=args.revisable)
     if args.signature:
         config = dataclasses.replace(config, **SIGNATURE_SETTINGS)
     result = run(data, args.filter, steps=args.steps, config=config, progress=not args.quiet,

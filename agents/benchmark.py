@@ -94,6 +94,9 @@ class ShippedPolicy:
 #: label -> the explorers shipped with the package (the adversary is not an explorer).
 SHIPPED_POLICIES: dict[str, ShippedPolicy] = {
     "ppo": ShippedPolicy(POLICY_DIR / "ppo_seif_explore.zip", "SeifExplore-v0", "README.md, 'Training'"),
+    "ppo_loop_budget": ShippedPolicy(
+        POLICY_DIR / "ppo_loop_budget.zip", "SeifExploreLoopBudget-v1", "docs/benchmark.md, 'Shipped policies'"
+    ),
 }
 
 #: Columns of ``leaderboard.csv`` (and keys of each row of ``leaderboard.json``).

@@ -27,6 +27,8 @@ def test_default_variants_are_every_layout_of_a_version():
 
 def test_shipped_policy_fits_the_default_variant():
     assert benchmark.policy_fits(benchmark.SHIPPED_POLICIES["ppo"], "SeifExplore-v1")
+    for policy in benchmark.SHIPPED_POLICIES.values():  # and each fits the variant it was trained on
+        assert benchmark.policy_fits(policy, policy.trained_on)
 
 
 def test_run_benchmark_writes_the_leaderboard(tmp_path, monkeypatch):

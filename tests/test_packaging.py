@@ -31,6 +31,8 @@ def test_wheel_ships_policies_configs_and_declares_its_imports(tmp_path):
     names = set(zipfile.ZipFile(wheel).namelist())
     for shipped in (ROOT / "agents" / "policies").glob("*.zip"):
         assert f"agents/policies/{shipped.name}" in names
+    for stats in (ROOT / "agents" / "policies").glob("*/vecnormalize.pkl"):  # a policy's normalisation
+        assert stats.relative_to(ROOT).as_posix() in names
     for config in (ROOT / "agents" / "hyperparams").glob("*.yml"):
         assert f"agents/hyperparams/{config.name}" in names
     for module in (ROOT / "seif_gym").rglob("*.py"):

@@ -14,6 +14,7 @@ import torch
 
 import seif_gym  # noqa: F401
 from agents import make_agent
+from agents.benchmark import SHIPPED_POLICIES
 from agents.checkpoints import load_vecnormalize_stats, save_with_vecnormalize, vecnormalize_path
 from agents.evaluate import SB3Agent
 from agents.showcase import SHIPPED_POLICY
@@ -408,8 +409,8 @@ def test_init_from_the_shipped_policy(tmp_path):
 
 
 # -- the shipped policies ----------------------------------------------------------------------------
-def final_map_errors(agent, seeds) -> list[float]:
-    env = gym.make("SeifExplore-v0")
+def final_map_errors(agent, seeds, env_id: str = "SeifExplore-v0") -> list[float]:
+    env = gym.make(env_id)
     errors = []
     for seed in seeds:
         observation, info = env.reset(seed=seed)
@@ -433,6 +434,20 @@ def test_shipped_policy_loads_and_beats_random_on_ten_seeds():
     assert np.mean(ppo) < np.mean(random)
     # and not by a hair: every episode of the policy ends below random's mean
     assert max(ppo) < np.mean(random), (ppo, random)
+
+
+@pytest.mark.parametrize("label", [label for label in SHIPPED_POLICIES if label != "ppo"])
+def test_every_shipped_explorer_loads_and_beats_random_on_its_variant(label):
+    """Each policy of ``agents.benchmark.SHIPPED_POLICIES`` (``ppo``: the test above), on five seeds of its variant."""
+    policy = SHIPPED_POLICIES[label]
+    assert policy.path.exists(), f"the shipped policy {policy.path} is missing"
+    env = gym.make(policy.trained_on)
+    agent = SB3Agent(policy.path, env=env)
+    assert agent.vecnormalize is not None or vecnormalize_path(policy.path) is None  # its statistics, if any, load
+    seeds = range(2000, 2005)
+    learned = final_map_errors(agent, seeds, policy.trained_on)
+    random = final_map_errors(make_agent("random", env, seed=0), seeds, policy.trained_on)
+    assert max(learned) < np.mean(random), (learned, random)
 
 
 @pytest.mark.parametrize("name", ["ppo_seif_explore.zip", "ppo_adversary.zip", "ppo_adversary_v1.zip"])

@@ -1225,6 +1225,14 @@ class Associator:
                 self.signatures.add(int(ids[k]), float(values[k]))
         return ids
 
+    def _merge(self, filt: SlamFilter, keep: int, remove: int) -> None:
+        """``filt.merge_landmarks(keep, remove)`` and the associator's own records of ``remove`` folded into ``keep``."""
+        filt.merge_landmarks(keep, remove)
+        self.last_seen[keep] = max(self.last_seen.get(keep, 0), self.last_seen.pop(remove, 0))
+        self.started.pop(remove, None)
+        self.tentatives.pop(remove, None)
+        self.signatures.merge(keep, remove)
+
     def _merge_copies(self, filt: SlamFilter) -> list[tuple[int, int]]:
         """Step 8: merge recent landmarks that form a rigid copy of old ones into them (``loop_merge``).
 
@@ -1260,11 +1268,8 @@ class Associator:
         merges = []
         for r, o in pairs:
             keep, remove = id_list[old_rows[o]], id_list[recent_rows[r]]
-            filt.merge_landmarks(keep, remove)
+            self._merge(filt, keep, remove)
             merges.append((keep, remove))
-            self.last_seen[keep] = max(self.last_seen.get(keep, 0), self.last_seen.pop(remove, 0))
-            self.started.pop(remove, None)
-            self.signatures.merge(keep, remove)
         self.stats.merged += len(merges)
         return merges
 
@@ -1287,12 +1292,8 @@ class Associator:
                 landmarks = filt.landmarks
                 difference = landmarks[i] - landmarks[j]
                 if float(difference @ np.linalg.solve(difference_cov, difference)) <= gate:
-                    filt.merge_landmarks(old_id, new_id)
+                    self._merge(filt, old_id, new_id)
                     merges.append((old_id, new_id))
-                    self.last_seen[old_id] = max(self.last_seen[old_id], self.last_seen.pop(new_id, 0))
-                    self.started.pop(new_id, None)
-                    self.signatures.merge(old_id, new_id)
-                    del self.tentatives[new_id]
                     continue
             if now - started > self.closure_window:
                 del self.tentatives[new_id]

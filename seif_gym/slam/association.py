@@ -1254,13 +1254,13 @@ class Associator:
             return []
         positions = np.asarray(filt.landmarks)
         pose = np.asarray(filt.pose)
-        near = np.hypot(positions[:, 0] - pose[0], positions[:, 1] - pose[1]) < self.merge_radius
+        # one vectorised pass over the means (as the candidate search); Python work only near the robot
+        near = np.flatnonzero(np.hypot(positions[:, 0] - pose[0], positions[:, 1] - pose[1]) < self.merge_radius)
         id_list = ids.tolist()
-        recent = near & np.array([now - self.started.get(i, -(10**9)) < self.merge_recent for i in id_list])
-        old = near & np.array([now - self.started.get(i, -(10**9)) > self.closure_age for i in id_list])
-        if recent.sum() < self.merge_inliers or old.sum() < self.merge_inliers:
+        age = np.array([now - self.started.get(id_list[row], -(10**9)) for row in near.tolist()], dtype=np.int64)
+        recent_rows, old_rows = near[age < self.merge_recent], near[age > self.closure_age]
+        if len(recent_rows) < self.merge_inliers or len(old_rows) < self.merge_inliers:
             return []
-        recent_rows, old_rows = np.flatnonzero(recent), np.flatnonzero(old)
         pairs, second = rigid_submap_match(positions[recent_rows], positions[old_rows], self.merge_tolerance,
                                            math.radians(self.merge_rotation), self.merge_shift)  # fmt: skip
         if len(pairs) < self.merge_inliers or len(pairs) - second < self.merge_margin:

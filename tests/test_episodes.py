@@ -38,6 +38,7 @@ CASES = [
     ("SeifExploreLoop-v1", (("filter", "eseif"),)),
     ("SeifExploreLoop-v1", (("data_association", "ml"),)),
     ("SeifExploreLoop-v1", (("data_association", "ml"), ("ml_association", "joint"))),
+    ("SeifExploreLoop-v1", (("data_association", "ml"), ("ml_association", "revisable"))),
     ("SeifExploreLoop-v0", (("data_association", "ml"),)),
     ("SeifExplore-v0", ()),
     ("SeifExplore-v0", (("max_active", 4),)),

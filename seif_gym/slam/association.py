@@ -1256,8 +1256,7 @@ class Associator:
         pose = np.asarray(filt.pose)
         # one vectorised pass over the means (as the candidate search); Python work only near the robot
         near = np.flatnonzero(np.hypot(positions[:, 0] - pose[0], positions[:, 1] - pose[1]) < self.merge_radius)
-        id_list = ids.tolist()
-        age = np.array([now - self.started.get(id_list[row], -(10**9)) for row in near.tolist()], dtype=np.int64)
+        age = np.array([now - self.started.get(i, -(10**9)) for i in ids[near].tolist()], dtype=np.int64)
         recent_rows, old_rows = near[age < self.merge_recent], near[age > self.closure_age]
         if len(recent_rows) < self.merge_inliers or len(old_rows) < self.merge_inliers:
             return []
@@ -1267,7 +1266,7 @@ class Associator:
             return []
         merges = []
         for r, o in pairs:
-            keep, remove = id_list[old_rows[o]], id_list[recent_rows[r]]
+            keep, remove = int(ids[old_rows[o]]), int(ids[recent_rows[r]])
             self._merge(filt, keep, remove)
             merges.append((keep, remove))
         self.stats.merged += len(merges)

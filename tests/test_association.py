@@ -64,8 +64,9 @@ def test_association_agrees_with_the_truth_on_99_percent(filter_class):
 
 
 def test_audit_counts_each_kind_of_decision():
-    class Fake:
+    class Fake:  # what AssociationAudit reads of an Associator
         created: dict = {}
+        merges: list = []
 
     audit, fake = AssociationAudit(), Fake()
     fake.created = {0: 0, 1: 1}

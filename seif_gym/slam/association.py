@@ -880,14 +880,14 @@ class Associator:
         ``closure_pairings``.
     loop_merge : bool
         Revise the association (step 8): fold landmarks started lately into
-        old ones when a rigid copy of the old map shows. Needs a filter that
-        merges landmarks (``supports_merge``: EKF, EIF, SEIF, ESEIF); off by
-        default (the envs' ``-v0``/``-v1`` association does not merge).
+        old ones when a rigid copy of the old map shows (through the filter's
+        ``merge_landmarks``); off by default (the envs' ``-v0``/``-v1``
+        association does not merge).
     merge_every : int
         Scans between two searches for a copy.
     merge_recent : int
-        A landmark started within this many scans is *recent*; one last
-        associated more than ``closure_age`` scans ago is *old*.
+        A landmark started within this many scans is *recent*; one started
+        more than ``closure_age`` scans ago is *old*.
     merge_radius : float
         Metres: both sets are taken within this distance of the robot.
     merge_tolerance : float
@@ -906,7 +906,7 @@ class Associator:
         closure accepted) and the two pass the correspondence test on the
         joint marginal of ``m_old - m_new`` (the ``gate``), it is merged into
         the old one; after ``closure_window`` scans it stays a landmark of its
-        own. Needs a filter that merges landmarks.
+        own.
 
     Notes
     -----
@@ -1237,8 +1237,8 @@ class Associator:
         """Step 8: merge recent landmarks that form a rigid copy of old ones into them (``loop_merge``).
 
         Every ``merge_every`` scans, the landmarks near the robot started in
-        the last ``merge_recent`` scans are matched against those near it not
-        associated for ``closure_age`` scans (:func:`rigid_submap_match`).
+        the last ``merge_recent`` scans are matched against those near it
+        started more than ``closure_age`` scans ago (:func:`rigid_submap_match`).
         With ``merge_inliers`` inliers or more, ``merge_margin`` more than any
         disjoint alternative, each inlier is merged into its old landmark
         (``filt.merge_landmarks``). A duplicate started at a loop closure the
@@ -1247,7 +1247,7 @@ class Associator:
         covariance the closure got wrong.
         """
         now = self.stats.scans
-        if now == 0 or now % self.merge_every or not getattr(filt, "supports_merge", False):
+        if now == 0 or now % self.merge_every:
             return []
         ids = filt.landmark_ids
         if len(ids) < 2 * self.merge_inliers:
@@ -1274,11 +1274,12 @@ class Associator:
 
     def _resolve_tentatives(self, filt: SlamFilter) -> list[tuple[int, int]]:
         """Merge each tentative landmark whose closure was accepted and whose correspondence test passes."""
-        if not self.tentatives or not getattr(filt, "supports_merge", False):
+        if not self.tentatives:
             return []
         now = self.stats.scans
         gate = self._thresholds[2][0]
         merges = []
+        landmarks = None  # the map's means, read once per call (and again after a merge reorders them)
         for new_id, (old_id, started) in list(self.tentatives.items()):
             try:
                 i, j = filt.landmark_index(old_id), filt.landmark_index(new_id)
@@ -1288,11 +1289,13 @@ class Associator:
             if max(self.last_seen.get(old_id, 0), self._closure_accepted) >= started:  # a closure accepted since
                 joint = self._joint_covariance(filt, np.array([i, j], dtype=np.int64))
                 difference_cov = joint[3:5, 3:5] + joint[5:7, 5:7] - joint[3:5, 5:7] - joint[5:7, 3:5]
-                landmarks = filt.landmarks
+                if landmarks is None:
+                    landmarks = filt.landmarks
                 difference = landmarks[i] - landmarks[j]
                 if float(difference @ np.linalg.solve(difference_cov, difference)) <= gate:
                     self._merge(filt, old_id, new_id)
                     merges.append((old_id, new_id))
+                    landmarks = None
                     continue
             if now - started > self.closure_window:
                 del self.tentatives[new_id]
@@ -1422,7 +1425,7 @@ class AssociationAudit:
         are scored first. Returns the number of measurements of this scan that
         disagree.
         """
-        for keep, remove in getattr(associator, "merges", ()):  # an associator that merges
+        for keep, remove in associator.merges:
             self._merge(keep, remove)
         ids = np.asarray(ids)  # for len()
         errors = 0

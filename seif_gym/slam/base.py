@@ -194,8 +194,6 @@ class SlamFilter(ABC):
 
     #: Option names and defaults of the subclass.
     OPTIONS: ClassVar[dict[str, Any]] = {}
-    #: Whether :meth:`merge_landmarks` is implemented.
-    supports_merge: ClassVar[bool] = False
 
     def __init__(
         self,
@@ -471,9 +469,9 @@ class SlamFilter(ABC):
             self._ids[j] = last_id
             self._id_to_index[last_id] = j
 
+    @abstractmethod
     def _merge(self, keep: int, remove: int) -> None:
         """:meth:`merge_landmarks` on state orders (``remove`` then swap-removed); atomic."""
-        raise NotImplementedError(f"{type(self).__name__} does not merge landmarks")
 
     def landmark_index(self, landmark_id: int | np.integer) -> int:
         """Order of landmark ``landmark_id`` in the state (0 for the first landmark)."""

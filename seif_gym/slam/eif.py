@@ -111,7 +111,6 @@ class EIF(SlamFilter, InformationForm):
     """
 
     OPTIONS = {}
-    supports_merge = True
 
     # -- storage -------------------------------------------------------------
     def _initialize(self, pose: FloatArray, pose_cov: FloatArray) -> None:

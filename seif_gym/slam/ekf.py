@@ -79,7 +79,6 @@ class EKF(SlamFilter):
     """
 
     OPTIONS = {}
-    supports_merge = True
 
     # -- storage -------------------------------------------------------------
     def _initialize(self, pose: FloatArray, pose_cov: FloatArray) -> None:

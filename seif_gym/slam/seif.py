@@ -752,7 +752,6 @@ class SEIF(SlamFilter, SparseInformationForm):
     MEAN_RECOVERIES: ClassVar[tuple[str, ...]] = ("wavefront", "amortized", "exact")
     #: Counters of subclasses that a failed step restores with the rest.
     _COUNTERS: ClassVar[tuple[str, ...]] = ()
-    supports_merge = True
     #: The backend of each ``implementation``.
     BACKENDS: ClassVar[dict[str, SEIFBackend]] = {"compiled": CompiledSEIFBackend(),
                                                   "reference": ReferenceSEIFBackend()}  # fmt: skip
@@ -829,8 +828,9 @@ class SEIF(SlamFilter, SparseInformationForm):
         either was (one active landmark fewer when both were). ``keep``'s mean
         is relaxed once against its neighbours and their neighbourhood is
         queued, so that the wavefront carries the correction out. Time in the
-        neighbour counts and the recovery queue's length; a failure leaves the
-        filter as it was (the update's journal).
+        neighbour counts and the recovery queue's length (the queue is rebuilt
+        in fresh arrays, so that the journal can put the old ones back); a
+        failure leaves the filter as it was (the update's journal).
         """
         store = self._store
         last = self.num_landmarks - 1
@@ -854,13 +854,10 @@ class SEIF(SlamFilter, SparseInformationForm):
         observed = max(self._last_observed[keep], self._last_observed[remove])
         store.merge(keep, remove)
         moved = keep if keep != last else remove  # where ``keep`` is now
-        rename = np.arange(last + 1)
-        rename[last] = remove
-        rename[remove] = -1
 
-        def renamed(indices: IntArray) -> IntArray:
-            out = rename[indices]
-            return out[out >= 0]
+        def renamed(indices: IntArray) -> IntArray:  # state orders after the swap-remove; ``remove`` dropped
+            kept = indices[indices != remove]
+            return np.where(kept == last, remove, kept)
 
         self._is_active[remove] = self._is_active[last]
         self._last_observed[remove] = self._last_observed[last]

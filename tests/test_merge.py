@@ -195,6 +195,14 @@ def test_rigid_submap_match_finds_a_planted_copy_within_the_drift_bounds():
     assert rigid_submap_match(recent, old, 0.3, np.radians(2), 3.0)[0] != sorted(pairs)
     assert len(rigid_submap_match(recent + 10.0, old, 0.3, np.radians(10), 3.0)[0]) < 4
     assert rigid_submap_match(recent[:1], old, 0.3, 1.0, 3.0) == ([], 0)
+    with pytest.raises(ValueError, match="recent"):
+        rigid_submap_match(recent[:, :1], old, 0.3, 1.0, 3.0)
+    with pytest.raises(ValueError, match="old"):
+        rigid_submap_match(recent, np.full((3, 2), np.nan), 0.3, 1.0, 3.0)
+    with pytest.raises(TypeError, match="tolerance"):
+        rigid_submap_match(recent, old, "0.3", 1.0, 3.0)
+    with pytest.raises(ValueError, match="max_shift"):
+        rigid_submap_match(recent, old, 0.3, 1.0, 0.0)
 
 
 def test_audit_scores_merges_by_the_final_map():

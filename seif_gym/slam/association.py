@@ -133,6 +133,7 @@ from numba import njit
 from numpy.typing import ArrayLike
 
 from seif_gym.slam._kernels import range_bearing_jacobian
+from seif_gym.slam._validation import as_finite_array, as_positive_scalar
 from seif_gym.slam.marginals import breadth_first_joint_covariance, supports_breadth_first
 from seif_gym.type_aliases import FloatArray, IntArray
 
@@ -670,7 +671,17 @@ def rigid_submap_match(
     second : int
         Inliers of the best hypothesis that shares no pair with it (how
         distinctive the match is).
+
+    Raises
+    ------
+    TypeError, ValueError
+        Naming the argument: points that are not finite ``(n, 2)`` arrays,
+        bounds that are not positive finite numbers.
     """
+    recent, old = as_finite_array(recent, "recent", (None, 2)), as_finite_array(old, "old", (None, 2))
+    tolerance = as_positive_scalar(tolerance, "tolerance")
+    max_rotation = as_positive_scalar(max_rotation, "max_rotation")
+    max_shift = as_positive_scalar(max_shift, "max_shift")
     if len(recent) < 2 or len(old) < 2:
         return [], 0
     ri, rj = np.triu_indices(len(recent), 1)
@@ -1003,10 +1014,6 @@ class Associator:
         self.closure_age = int(closure_age)
         self.closure_pairings = int(closure_pairings)
         self.closure_window = int(closure_window)
-        for name, value in (("merge_radius", merge_radius), ("merge_tolerance", merge_tolerance),
-                            ("merge_rotation", merge_rotation), ("merge_shift", merge_shift)):  # fmt: skip
-            if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0.0 < float(value) < math.inf:
-                raise ValueError(f"{name} must be a positive finite number, got {value!r}")
         for name, flag in (("loop_merge", loop_merge), ("tentative_closures", tentative_closures)):
             if not isinstance(flag, bool):
                 raise TypeError(f"{name} must be a bool, got {type(flag).__name__}")
@@ -1018,12 +1025,12 @@ class Associator:
         self.loop_merge = loop_merge
         self.merge_every = int(merge_every)
         self.merge_recent = int(merge_recent)
-        self.merge_radius = float(merge_radius)
-        self.merge_tolerance = float(merge_tolerance)
+        self.merge_radius = as_positive_scalar(merge_radius, "merge_radius")
+        self.merge_tolerance = as_positive_scalar(merge_tolerance, "merge_tolerance")
         self.merge_inliers = int(merge_inliers)
         self.merge_margin = int(merge_margin)
-        self.merge_rotation = float(merge_rotation)
-        self.merge_shift = float(merge_shift)
+        self.merge_rotation = as_positive_scalar(merge_rotation, "merge_rotation")
+        self.merge_shift = as_positive_scalar(merge_shift, "merge_shift")
         #: landmark id -> the scan that started it
         self.started: dict[int, int] = {}
         #: ``(kept id, removed id)`` of the merges made by the last :meth:`associate`, before its scan

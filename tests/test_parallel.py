@@ -6,6 +6,7 @@ The Ray backend is tested on a two-node loopback cluster in tests/test_ray.py.
 from __future__ import annotations
 
 import json
+import os
 import re
 import subprocess
 import sys
@@ -75,7 +76,10 @@ def test_evaluate_agents_rows_equal_on_local_processes():
     assert untimed(rows) == untimed(serial_rows)
     assert summary["paired"] == serial_summary["paired"]
     assert len(executor.placements) == 1 + 4  # random's one task, frontier's four (2 slots: 2 runs each)
-    assert len(set(executor.placements)) == 2
+    # Which of the two workers takes which task is the scheduler's choice (one may take all five
+    # before the other has started), so the test asks only that they ran in worker processes.
+    pids = {int(place.rsplit(":", 1)[1]) for place in executor.placements}
+    assert 1 <= len(pids) <= 2 and os.getpid() not in pids
 
 
 def test_robustness_rows_and_curves_equal_on_local_processes(tmp_path):

@@ -361,6 +361,10 @@ class SeifExploreEnv(gym.Env):
 
     ## Version History
 
+    * Budget tasks (seif_gym 0.3): `SeifExploreLoopBudget`, `SeifExploreBudget`
+      and `SeifExploreClusteredBudget`, at every version: the loop, uniform and
+      clustered layouts with 150, 150 and 100 steps, where the 400-step tasks
+      saturate (`docs/benchmark.md`, Tasks).
     * v0 of `SeifExploreMRCLAM`: the MRCLAM Dataset 6 arena, its surveyed
       landmarks, the robots' limits and camera, the calibrated noise (issue 11).
     * Keyword arguments `arena_extent`, `landmark_positions` (and the layout

@@ -3,6 +3,7 @@
 Usage::
 
     python benchmarks/association.py --seeds 3 --filters ekf,seif      # all scenarios x seeds 0..2
+    python benchmarks/association.py --first-seed 3 --seeds 6          # seeds 3..8: runs the design never saw
 
 Runs :data:`seif_gym.slam.scenarios.FIDELITY_SCENARIOS` (seed ``s`` of a
 scenario is ``make_loop_run(scenario, s)``) with the correspondences hidden:
@@ -102,7 +103,13 @@ def _run(args: tuple) -> tuple[tuple[str, int, str], dict[str, float]]:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--seeds", type=int, default=3, help="seeds 0..N-1 per scenario (default 3)")
+    parser.add_argument("--seeds", type=int, default=3, help="seeds per scenario (default 3)")
+    parser.add_argument(
+        "--first-seed",
+        type=int,
+        default=0,
+        help="the first seed (default 0: seeds 0..N-1; the design used 0..2, so fresh runs start at 3)",
+    )
     parser.add_argument("--filters", default="ekf,seif", help="comma-separated, of " + ", ".join(FILTERS))
     parser.add_argument("--scenarios", default=",".join(FIDELITY_SCENARIOS), help="comma-separated scenario names")
     parser.add_argument("--options", default="", help="Associator keyword arguments, e.g. landmark_density=0.5")
@@ -119,11 +126,14 @@ def main(argv: list[str] | None = None) -> int:
             parser.error(f"--scenarios: unknown scenario {name!r}")
     if args.seeds < 1:
         parser.error("--seeds must be at least 1")
+    if args.first_seed < 0:
+        parser.error("--first-seed must be non-negative")
+    seeds = range(args.first_seed, args.first_seed + args.seeds)
     options = parse_options(args.options)
     Associator(**options)  # bad options fail here, before the workers start
     if args.max_active is not None and args.max_active < 1:
         parser.error("--max-active must be at least 1")
-    jobs = [(s, seed, f, options, args.max_active) for s in scenarios for f in filters for seed in range(args.seeds)]
+    jobs = [(s, seed, f, options, args.max_active) for s in scenarios for f in filters for seed in seeds]
     started = time.perf_counter()
     if args.jobs > 1:
         with ProcessPoolExecutor(args.jobs) as pool:
@@ -131,7 +141,7 @@ def main(argv: list[str] | None = None) -> int:
     else:
         results = dict(map(_run, jobs))
     print(f"# {' '.join([sys.executable.split('/')[-1], *sys.argv])}")
-    print(f"# seeds 0..{args.seeds - 1}; {time.perf_counter() - started:.0f} s")
+    print(f"# seeds {seeds[0]}..{seeds[-1]}; {time.perf_counter() - started:.0f} s")
     header = f"{'scenario':18s} {'filter':6s} {'correct %':>9s} {'dup %':>6s} {'disc %':>6s} {'pose err m':>10s} " \
              f"{'ms/scan':>7s} {'max ms':>7s} {'started':>7s} {'merged':>6s} {'wrong':>5s}"  # fmt: skip
     print(header)
@@ -149,10 +159,10 @@ def main(argv: list[str] | None = None) -> int:
 
     for scenario in scenarios:
         for name in filters:
-            line(scenario, name, [results[(scenario, seed, name)] for seed in range(args.seeds)])
+            line(scenario, name, [results[(scenario, seed, name)] for seed in seeds])
     print("-" * len(header))
     for name in filters:
-        line("all", name, [results[(s, seed, name)] for s in scenarios for seed in range(args.seeds)])
+        line("all", name, [results[(s, seed, name)] for s in scenarios for seed in seeds])
     return 0
 
 

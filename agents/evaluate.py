@@ -10,9 +10,9 @@ Every agent runs ``N`` episodes on the seeds ``S, S+1, …, S+N−1`` (the same
 for every agent; ``env.reset(seed=s)`` fixes the landmark layout, the start
 and all noise of episode ``s``). An agent is a name of
 :data:`agents.BASELINES` (built with ``make_agent(name, env)``; ``random``
-is seeded with ``S``), the path of a Stable-Baselines3 ``.zip`` (loaded
-with ``PPO.load``; if a ``vecnormalize.pkl`` lies next to it, its observation
-normalisation is applied; labelled by the file's stem, or by its folder's
+is seeded with ``S``), the path of a Stable-Baselines3 ``.zip`` (a PPO,
+RecurrentPPO or SAC model, :func:`sb3_algorithm`; if a ``vecnormalize.pkl``
+lies next to it, its observation normalisation is applied; labelled by the file's stem, or by its folder's
 name for ``model.zip`` / ``best_model.zip``) or ``rllib:CHECKPOINT``; any of
 them may be labelled ``LABEL=SPEC``. Every agent acts with ``deterministic=True``.
 ``--env-kwargs`` is a JSON object passed to ``gym.make`` (it may hold
@@ -102,7 +102,7 @@ import sys
 import time
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import gymnasium as gym
 import numpy as np
@@ -114,6 +114,9 @@ from agents.parallel import Executor, chunks
 from agents.parallel import add_arguments as add_executor_arguments
 from agents.parallel import from_arguments as executor_from_arguments
 from seif_gym.progress import Progress
+
+if TYPE_CHECKING:
+    from stable_baselines3.common.base_class import BaseAlgorithm
 
 __all__ = [
     "RESULT_COLUMNS",
@@ -127,6 +130,7 @@ __all__ = [
     "PAIRED_STAT_KEYS",
     "SCHEMA_VERSION",
     "SB3Agent",
+    "sb3_algorithm",
     "agent_label",
     "agent_labels",
     "check_agent_spec",
@@ -204,8 +208,40 @@ TABLE_COLUMNS: tuple[tuple[str, str], ...] = (
 
 
 # -- agents ----------------------------------------------------------------------------------------
+def sb3_algorithm(path: str | os.PathLike) -> type[BaseAlgorithm]:
+    """The algorithm class that loads the SB3 model at ``path``: ``PPO``, ``RecurrentPPO`` or ``SAC``.
+
+    Read from the policy class saved in the ``.zip`` (without loading the weights).
+
+    Raises
+    ------
+    ValueError
+        ``path`` is not a model of one of the three algorithms.
+    """
+    import zipfile
+
+    from sb3_contrib import RecurrentPPO
+    from sb3_contrib.common.recurrent.policies import RecurrentActorCriticPolicy
+    from stable_baselines3 import PPO, SAC
+    from stable_baselines3.common.policies import ActorCriticPolicy
+    from stable_baselines3.common.save_util import json_to_data
+    from stable_baselines3.sac.policies import SACPolicy
+
+    try:
+        with zipfile.ZipFile(path) as archive:
+            policy = json_to_data(archive.read("data").decode()).get("policy_class")
+    except (OSError, KeyError, zipfile.BadZipFile, ValueError) as error:
+        raise ValueError(f"path: {str(path)!r} is not a saved SB3 model ({error})") from error
+    # the recurrent policy is an actor-critic policy too: ask for it first
+    for policy_base, algorithm in ((RecurrentActorCriticPolicy, RecurrentPPO), (SACPolicy, SAC),
+                                   (ActorCriticPolicy, PPO)):  # fmt: skip
+        if isinstance(policy, type) and issubclass(policy, policy_base):
+            return algorithm
+    raise ValueError(f"path: {str(path)!r} holds a {policy!r} policy, not one of PPO, RecurrentPPO or SAC")
+
+
 class SB3Agent(Agent):
-    """A saved Stable-Baselines3 PPO model behind the :class:`~agents.baselines.Agent` interface.
+    """A saved Stable-Baselines3 model (PPO, RecurrentPPO or SAC) behind the :class:`~agents.baselines.Agent` interface.
 
     Parameters
     ----------
@@ -227,10 +263,9 @@ class SB3Agent(Agent):
 
     def __init__(self, path: str | os.PathLike, env: Any | None = None, env_factory: Any | None = None) -> None:
         super().__init__(env)
-        from stable_baselines3 import PPO
-
         self.path = Path(path)
-        self.model = PPO.load(self.path, device="cpu")
+        # the recurrent state runs through predict's ``state`` (run_episode passes it back each step)
+        self.model = sb3_algorithm(self.path).load(self.path, device="cpu")
         self.vecnormalize = None
         from agents.checkpoints import vecnormalize_path
 

@@ -15,11 +15,13 @@ from typing import Any
 
 import gymnasium as gym
 import torch
+from sb3_contrib.common.recurrent.policies import RecurrentMultiInputActorCriticPolicy
 from stable_baselines3.common.policies import MultiInputActorCriticPolicy
 from stable_baselines3.common.torch_layers import BaseFeaturesExtractor
+from stable_baselines3.sac.policies import MultiInputPolicy as SACMultiInputPolicy
 from torch import nn
 
-__all__ = ["BeliefExtractor", "BeliefPolicy"]
+__all__ = ["BeliefExtractor", "BeliefPolicy", "BeliefRecurrentPolicy", "BeliefSACPolicy"]
 
 
 def belief_map_encoder(
@@ -90,6 +92,33 @@ class BeliefPolicy(MultiInputActorCriticPolicy):
     (and so its ``state_dict`` keys) are those of a ``MultiInputPolicy``
     built with ``features_extractor_class=BeliefExtractor``, so weights move
     between the two (``--init-from`` of a model saved either way).
+    """
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        kwargs.setdefault("features_extractor_class", BeliefExtractor)
+        super().__init__(*args, **kwargs)
+
+
+class BeliefRecurrentPolicy(RecurrentMultiInputActorCriticPolicy):
+    """sb3-contrib's ``RecurrentPPO`` ``MultiInputLstmPolicy`` with :class:`BeliefExtractor` by default.
+
+    The LSTM runs on the extractor's features, so the policy can remember
+    what the belief observation forgets (where it has been, when it last saw
+    a landmark). ``policy: agents.networks.BeliefRecurrentPolicy`` in
+    ``agents/hyperparams/ppo_lstm.yml``.
+    """
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        kwargs.setdefault("features_extractor_class", BeliefExtractor)
+        super().__init__(*args, **kwargs)
+
+
+class BeliefSACPolicy(SACMultiInputPolicy):
+    """SB3's ``SAC`` ``MultiInputPolicy`` with :class:`BeliefExtractor` by default.
+
+    Actor and critics each get their own extractor (SB3's default for SAC,
+    ``share_features_extractor=False``).
+    ``policy: agents.networks.BeliefSACPolicy`` in ``agents/hyperparams/sac.yml``.
     """
 
     def __init__(self, *args: Any, **kwargs: Any) -> None:

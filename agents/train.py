@@ -71,7 +71,7 @@ import yaml
 import seif_gym  # noqa: F401  (registers the envs)
 from agents.hyperparams import HYPERPARAMS_DIR
 
-#: The algorithms of rl-zoo3 (``rl_zoo3.ALGOS``); a config ``agents/hyperparams/<algo>.yml`` exists for ``ppo``.
+#: The algorithms of rl-zoo3 (``rl_zoo3.ALGOS``); configs ``agents/hyperparams/<algo>.yml`` exist for ``ppo``, ``ppo_lstm`` and ``sac``.
 ALGOS = ("a2c", "ddpg", "dqn", "ppo", "sac", "td3", "ars", "crossq", "qrdqn", "tqc", "trpo", "ppo_lstm")
 VEC_ENVS = ("native", "dummy", "subproc")
 

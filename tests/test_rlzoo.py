@@ -230,3 +230,8 @@ def test_the_config_loads_by_module_name_as_by_path():
     from agents.hyperparams.ppo import hyperparams
 
     assert hyperparams == load("ppo") == yaml.safe_load(CONFIG.read_text())
+    from agents.hyperparams.ppo_lstm import hyperparams as lstm_hyperparams
+    from agents.hyperparams.sac import hyperparams as sac_hyperparams
+
+    assert sac_hyperparams == load("sac") == yaml.safe_load((CONFIG.parent / "sac.yml").read_text())
+    assert lstm_hyperparams == load("ppo_lstm") == yaml.safe_load((CONFIG.parent / "ppo_lstm.yml").read_text())

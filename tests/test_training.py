@@ -324,6 +324,46 @@ def test_sb3_agent_loads_a_checkpoints_own_statistics(small_model, tmp_path):
         assert np.all(agent.vecnormalize.obs_rms["pose"].mean == mean), path
 
 
+# -- SAC and RecurrentPPO ----------------------------------------------------------------------------
+@pytest.mark.parametrize(
+    "algo, algorithm, tiny",
+    [
+        ("sac", "SAC", ["learning_starts=64", "batch_size=32", "buffer_size=1000"]),
+        ("ppo_lstm", "RecurrentPPO", ["n_steps=64", "batch_size=64", "n_epochs=1"]),
+    ],
+)
+def test_other_algorithms_train_from_their_config_and_evaluate(tmp_path, algo, algorithm, tiny):
+    """sac.yml and ppo_lstm.yml train through agents.train; the evaluation harness loads and runs what they save."""
+    from agents.evaluate import run_episode, sb3_algorithm
+
+    env_kwargs = {"num_landmarks": 10, "max_episode_steps": 30}
+    argv = ["--algo", algo, "--env", "SeifExploreLoopBudget-v1", "--n-envs", "2", "--seed", "1"]
+    argv += ["--env-kwargs", json.dumps(env_kwargs), "--hyperparams", *tiny, "-n", "256"]
+    argv += ["--eval-freq", "128", "--eval-episodes", "1", "--out", str(tmp_path), "--quiet"]
+    assert main(argv) == 0
+    best = tmp_path / "best_map_error" / "model.zip"
+    assert sb3_algorithm(best).__name__ == algorithm
+    entry = load(algo)["SeifExploreLoopBudget-v1"]
+    assert entry["env_wrapper"] == load("ppo")["SeifExploreLoopBudget-v1"]["env_wrapper"]  # the task side of PPO's
+    env = gym.make("SeifExploreLoopBudget-v1", **env_kwargs)
+    agent = SB3Agent(best, env=env)
+    assert type(agent.model).__name__ == algorithm and agent.vecnormalize is not None
+    observation, _ = env.reset(seed=3)
+    action, state = agent.predict(observation, episode_start=np.array([True]), deterministic=True)
+    assert action.shape == (2,) and (state is not None) == (algo == "ppo_lstm")  # the LSTM's state comes back
+    row, trace = run_episode(agent, env, seed=3)
+    assert row["length"] == 30 and len(trace) == 31
+
+
+def test_sb3_algorithm_refuses_what_is_not_a_model(tmp_path):
+    from agents.evaluate import sb3_algorithm
+
+    (tmp_path / "x.zip").write_bytes(b"not a zip")
+    for path in (tmp_path / "x.zip", tmp_path / "missing.zip"):
+        with pytest.raises(ValueError, match="path"):
+            sb3_algorithm(path)
+
+
 # -- --init-from -------------------------------------------------------------------------------------
 def test_init_from_restores_weights_and_statistics(tmp_path):
     normalize = [

@@ -428,9 +428,12 @@ def prepare(args: argparse.Namespace) -> tuple[Any, Any]:
     return experiment, model
 
 
-def train(args: argparse.Namespace) -> Path:
-    """Train and save; returns the run's folder."""
-    experiment, model = prepare(args)
+def train(args: argparse.Namespace, prepared: tuple[Any, Any] | None = None) -> Path:
+    """Train and save; returns the run's folder.
+
+    ``prepared`` is ``prepare(args)``'s result when the caller made it already.
+    """
+    experiment, model = prepare(args) if prepared is None else prepared
     started = time.perf_counter()
     experiment.learn(model)
     elapsed = time.perf_counter() - started
@@ -449,9 +452,11 @@ def train(args: argparse.Namespace) -> Path:
 def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
-        train(args)
-    except (ValueError, FileNotFoundError) as error:
+        prepared = prepare(args)
+    except (ValueError, FileNotFoundError) as error:  # a bad argument or config: one line, no traceback
         raise SystemExit(f"agents.train: {error}") from error
+    # an error during training (numpy's LinAlgError is a ValueError too) keeps its traceback
+    train(args, prepared)
     return 0
 
 

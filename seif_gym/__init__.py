@@ -1,30 +1,35 @@
 """seif_gym: a Gymnasium environment for learning active SLAM with a SEIF in the loop.
 
 Importing the package registers the environments, so both
-``gym.make("SeifExplore-v1")`` (after ``import seif_gym``) and
-``gym.make("seif_gym:SeifExplore-v1")`` work.
+``gym.make("SeifExplore-v2")`` (after ``import seif_gym``) and
+``gym.make("seif_gym:SeifExplore-v2")`` work.
 
 ================================= ================================================ ==================
 id                                what changes (kwargs of ``SeifExploreEnv``)      max_episode_steps
 ================================= ================================================ ==================
-``SeifExplore-v1``                defaults: 20 m arena, 30 uniform landmarks       400
-``SeifExploreLoop-v1``            ``layout="loop"``, 40 landmarks on a ring: the   400
+``SeifExplore-v2``                defaults: 20 m arena, 30 uniform landmarks       400
+``SeifExploreLoop-v2``            ``layout="loop"``, 40 landmarks on a ring: the   400
                                   map only stays accurate if the loop is closed
-``SeifExploreClustered-v1``       ``layout="clustered"``: empty space between      400
+``SeifExploreClustered-v2``       ``layout="clustered"``: empty space between      400
                                   clusters of landmarks
-``SeifExploreLarge-v1``           40 m arena, 120 landmarks                        1000
-``SeifExploreLoopBudget-v1``      the loop's world with a budget of 150 steps:     150
+``SeifExploreLarge-v2``           40 m arena, 120 landmarks                        1000
+``SeifExploreLoopBudget-v2``      the loop's world with a budget of 150 steps:     150
                                   the explorers that tie on the 400-step loop
                                   separate (``docs/benchmark.md``, Tasks)
-``SeifExploreBudget-v1``          the uniform world with a budget of 150 steps     150
-``SeifExploreClusteredBudget-v1`` the clusters with a budget of 100 steps          100
-``SeifExploreMRCLAM-v0``          MRCLAM Dataset 6's landmarks, walls, robots,     1200
+``SeifExploreBudget-v2``          the uniform world with a budget of 150 steps     150
+``SeifExploreClusteredBudget-v2`` the clusters with a budget of 100 steps          100
+``SeifExploreMRCLAM-v1``          MRCLAM Dataset 6's landmarks, walls, robots,     1200
                                   camera and calibrated noise
                                   (``seif_gym/envs/mrclam.py``)
 ================================= ================================================ ==================
 
 Versions
 --------
+* ``-v2`` (seif_gym 0.3): the sensor does not see a landmark within 0.3 m
+  (``sensor_min_range=0.3``). In ``-v0``/``-v1`` a robot driving over a
+  landmark measures it at millimetres; the bearing's information grows as
+  ``1/r^2`` and can make the SEIF's information matrix indefinite (a
+  ``LinAlgError``). Everything else as ``-v1``.
 * ``-v1`` (seif_gym 0.2): the filter's mean recovery is the wavefront
   recovery (``mean_recovery="wavefront"``, the SEIF's and ESEIF's default),
   which keeps up with loop closures (``benchmarks/fidelity.py``). With
@@ -56,7 +61,7 @@ _LAYOUTS: dict[str, tuple[dict, int]] = {
     "SeifExploreLarge": ({"arena_size": 40.0, "num_landmarks": 120}, 1000),
     # The loop under a step budget (seif_gym 0.3): at 400 steps every explorer closes the ring and the
     # baselines tie; at 150 they separate (docs/benchmark.md, "Tasks"). Registered in every version,
-    # like the other layouts, so that -v0 and -v1 stay two complete families.
+    # like the other layouts, so that every version stays a complete family.
     "SeifExploreLoopBudget": ({"layout": "loop", "num_landmarks": 40}, 150),
     # The same fix for the uniform and clustered layouts (seif_gym 0.3), which saturate at 400 steps too:
     # 150 steps separate the uniform layout's baselines, the clusters need 100 (at 150 revisit ties
@@ -70,8 +75,9 @@ VERSIONED_VARIANTS: tuple[str, ...] = tuple(_LAYOUTS)
 
 #: What each version pins beyond the layout (kwargs of ``SeifExploreEnv``).
 VERSIONS: dict[int, dict] = {
-    0: {"mean_recovery": "amortized", "ml_association": "individual"},
-    1: {"mean_recovery": "wavefront", "ml_association": "individual"},
+    0: {"mean_recovery": "amortized", "ml_association": "individual", "sensor_min_range": 0.0},
+    1: {"mean_recovery": "wavefront", "ml_association": "individual", "sensor_min_range": 0.0},
+    2: {"mean_recovery": "wavefront", "ml_association": "individual", "sensor_min_range": 0.3},
 }
 
 #: The newest version, what ``SeifExploreEnv()`` builds with its defaults.
@@ -88,7 +94,11 @@ VARIANTS: dict[str, tuple[dict, int]] = {
 # landmarks, the walls, the robots' limits, the camera and the calibrated noise of Dataset 6, with the
 # current version's filter settings (its own version numbers start at 0, as Gymnasium's do; it has no
 # seif_gym 0.1 behaviour to keep). 1200 steps of 0.25 s: five minutes.
+# -v1 adds the sensor's blind zone of the -v2 family; -v0 (the 0.2 family's settings) stays reproducible.
 VARIANTS["SeifExploreMRCLAM-v0"] = ({**mrclam_kwargs(), **VERSIONS[1]}, 1200)
+VARIANTS["SeifExploreMRCLAM-v1"] = ({**mrclam_kwargs(), **VERSIONS[LATEST_VERSION]}, 1200)
+#: The MRCLAM world's id at its newest version.
+MRCLAM_ID = "SeifExploreMRCLAM-v1"
 
 for _env_id, (_kwargs, _steps) in VARIANTS.items():
     if _env_id not in registry:
@@ -107,5 +117,6 @@ __all__ = [
     "LATEST_VERSION",
     "ENTRY_POINT",
     "VECTOR_ENTRY_POINT",
+    "MRCLAM_ID",
     "__version__",
 ]

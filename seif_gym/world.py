@@ -276,12 +276,14 @@ def _step_worlds(
 
 
 @njit(cache=True)
-def _measure_worlds(poses: FloatArray, landmarks: FloatArray, max_range: float, half_fov: float, sigma_range: float,
-                    sigma_bearing: float, noise: FloatArray, cursor: NDArray[np.int64], ranges: FloatArray,
-                    bearings: FloatArray, ids: NDArray[np.int64], counts: NDArray[np.int64]) -> None:  # fmt: skip
+def _measure_worlds(poses: FloatArray, landmarks: FloatArray, max_range: float, half_fov: float, min_range: float,
+                    sigma_range: float, sigma_bearing: float, noise: FloatArray, cursor: NDArray[np.int64],
+                    ranges: FloatArray, bearings: FloatArray, ids: NDArray[np.int64],
+                    counts: NDArray[np.int64]) -> None:  # fmt: skip
     """:meth:`World.measure` of every world, its sensor noise read from ``noise[e, cursor[e]:]``."""
     for e in range(poses.shape[0]):
-        visible, z = _visible_measurements(poses[e, 0], poses[e, 1], poses[e, 2], landmarks[e], max_range, half_fov)
+        visible, z = _visible_measurements(poses[e, 0], poses[e, 1], poses[e, 2], landmarks[e], max_range, half_fov,
+                                           min_range)  # fmt: skip
         c = cursor[e]
         m = visible.shape[0]
         for k in range(m):
@@ -391,7 +393,7 @@ class BatchedWorld:
         """Noisy measurements of every world: ``ranges, bearings, ids`` (N, L), valid up to ``counts`` (N,)."""
         self._sensor_noise.reserve(2 * self.config.num_landmarks)
         noise, sensor = self._sensor_noise, self.sensor
-        _measure_worlds(self.poses, self.landmarks, sensor.max_range, 0.5 * sensor.fov, sensor.sigma_range,
-                        sensor.sigma_bearing, noise.values, noise.cursor, self.ranges, self.bearings, self.ids,
+        _measure_worlds(self.poses, self.landmarks, sensor.max_range, 0.5 * sensor.fov, sensor.min_range,
+                        sensor.sigma_range, sensor.sigma_bearing, noise.values, noise.cursor, self.ranges, self.bearings, self.ids,
                         self.counts)  # fmt: skip
         return self.ranges, self.bearings, self.ids, self.counts

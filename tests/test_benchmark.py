@@ -20,7 +20,7 @@ def test_default_variants_are_every_layout_of_a_version():
     with pytest.raises(ValueError, match="version"):
         benchmark.default_variants(99)
     assert benchmark._resolve_variants(["SeifExploreLoop", "SeifExplore-v0"], None) == [
-        "SeifExploreLoop-v1", "SeifExplore-v0"]  # fmt: skip
+        f"SeifExploreLoop-v{seif_gym.LATEST_VERSION}", "SeifExplore-v0"]  # fmt: skip
     with pytest.raises(ValueError, match="variants"):
         benchmark._resolve_variants(["NoSuchLayout"], None)
 

@@ -26,11 +26,11 @@ import pytest
 # rendering in the checkers must not need a display
 os.environ.setdefault("MPLBACKEND", "Agg")
 
-from seif_gym import ENTRY_POINT, VARIANTS  # noqa: E402
+from seif_gym import ENTRY_POINT, LATEST_VERSION, VARIANTS  # noqa: E402
 from seif_gym.envs.explore import Measurements  # noqa: E402
 from seif_gym.observation import BeliefEncoder  # noqa: E402
 
-ENV_ID = "SeifExplore-v1"
+ENV_ID = f"SeifExplore-v{LATEST_VERSION}"  # the newest version
 OBS_KEYS = ("pose", "landmarks", "landmarks_mask", "belief_map")
 #: dtype of each observation entry: 1-D float32 vectors and a uint8 image (what SB3 expects).
 OBS_DTYPES = {"pose": np.float32, "landmarks": np.float32, "landmarks_mask": np.float32, "belief_map": np.uint8}
@@ -416,7 +416,7 @@ def test_true_robot_pose_does_not_enter_the_observation():
 def test_moved_true_robot_gives_the_same_observations_while_nothing_is_seen():
     """With nothing in sensor range the filter only hears the executed controls: moving the *true*
     robot then must not change any observation (swept area included) over many steps."""
-    kwargs = {"num_landmarks": 2, "sensor_range": 0.3}
+    kwargs = {"num_landmarks": 2, "sensor_range": 0.3, "sensor_min_range": 0.0}
     env_a, env_b = make(**kwargs), make(**kwargs)
     env_a.reset(seed=2)
     env_b.reset(seed=2)

@@ -54,7 +54,7 @@ def test_calibrated_noise_is_dt_invariant_in_the_env():
     """The filter's pose covariance after one second of the same command hardly depends on the step."""
     covariances = []
     for dt in (0.05, 0.25):
-        env = SeifExploreEnv(**CALIBRATED, dt=dt, filter="ekf", num_landmarks=1, sensor_range=0.1)
+        env = SeifExploreEnv(**CALIBRATED, dt=dt, filter="ekf", num_landmarks=1, sensor_range=0.1, sensor_min_range=0.0)
         env.reset(seed=0)
         for _ in range(round(1.0 / dt)):
             env.step(np.array([0.5, 0.2], dtype=np.float32))
@@ -62,7 +62,7 @@ def test_calibrated_noise_is_dt_invariant_in_the_env():
     np.testing.assert_allclose(covariances[0], covariances[1], rtol=0.1, atol=1e-9)
     thrun = []
     for dt in (0.05, 0.25):
-        env = SeifExploreEnv(dt=dt, filter="ekf", num_landmarks=1, sensor_range=0.1)
+        env = SeifExploreEnv(dt=dt, filter="ekf", num_landmarks=1, sensor_range=0.1, sensor_min_range=0.0)
         env.reset(seed=0)
         for _ in range(round(1.0 / dt)):
             env.step(np.array([0.5, 0.2], dtype=np.float32))

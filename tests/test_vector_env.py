@@ -17,6 +17,9 @@ from seif_gym.envs.explore import Measurements
 from seif_gym.envs.vector import SeifExploreVectorEnv
 from seif_gym.threads import numba_threads
 
+#: What ``SeifExploreVectorEnv()``'s defaults compute: the newest uniform id.
+LATEST_ID = f"SeifExplore-v{seif_gym.LATEST_VERSION}"
+
 
 def _assert_equal(a, b, where: str) -> None:
     if isinstance(a, dict):
@@ -60,7 +63,7 @@ def test_vector_env_equals_sync_vector_env(mode, threads, num_envs, filter_kwarg
     native = SeifExploreVectorEnv(num_envs, max_episode_steps=limit, autoreset_mode=mode, num_threads=threads, **kwargs)
     assert native.backend == "compiled" and native.metadata["autoreset_mode"] == mode
     assert native.num_threads == threads
-    reference = SyncVectorEnv([lambda: gym.make("SeifExplore-v1", max_episode_steps=limit, **kwargs)
+    reference = SyncVectorEnv([lambda: gym.make(LATEST_ID, max_episode_steps=limit, **kwargs)
                                for _ in range(num_envs)], autoreset_mode=mode)  # fmt: skip
     observations, infos = native.reset(seed=11)
     expected_observations, expected_infos = reference.reset(seed=11)

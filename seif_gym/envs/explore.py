@@ -113,10 +113,15 @@ class SensorConfig:
     range_noise: tuple[float, ...] | None = None
     #: Correlation time of each landmark's range error, s (``None``: white errors).
     range_error_time: float | None = None
+    #: Landmarks this close or closer are not seen, metres (``-v2``: 0.3; ``-v0``/``-v1``: 0).
+    sensor_min_range: float = 0.3
 
     def __post_init__(self) -> None:
         for name in ("sensor_range", "fov", "sigma_range", "sigma_bearing"):
             _check_positive(name, getattr(self, name))
+        minimum = self.sensor_min_range
+        if isinstance(minimum, bool) or not isinstance(minimum, (int, float)) or not 0.0 <= minimum < self.sensor_range:
+            raise ValueError(f"sensor_min_range must be a number in [0, sensor_range), got {minimum!r}")
         if self.fov > 2.0 * math.pi + 1e-12:
             raise ValueError(f"fov must be at most 2*pi, got {self.fov!r}")
         if self.range_noise is not None:
@@ -143,7 +148,8 @@ def make_models(
 
     One home for both the env and the replay of recorded episodes
     (:func:`seif_gym.episodes.episode_models`): keys missing from ``config``
-    (episodes recorded before they existed) take the env's defaults.
+    (episodes recorded before they existed) take the env's defaults, but for
+    ``sensor_min_range``, which takes 0 (what every env had before it existed).
     """
     robot = RobotConfig(
         dt=float(config.get("dt", 0.25)),
@@ -154,6 +160,7 @@ def make_models(
     sensor_config = SensorConfig(
         sensor_range=config["sensor_range"], fov=config["fov"], sigma_range=config["sigma_range"],
         sigma_bearing=config["sigma_bearing"], range_noise=None if range_noise is None else tuple(range_noise),
+        sensor_min_range=float(config.get("sensor_min_range", 0.0)),
     )  # fmt: skip
     motion: VelocityMotionModel | PerSecondVelocityMotionModel
     if robot.motion_model == "per_second":
@@ -166,12 +173,12 @@ def make_models(
         slope, low, high = sensor_config.range_noise
         sensor = RangeDependentSensor(
             range_slope=slope, range_bounds=(low, high), sigma_bearing=sensor_config.sigma_bearing,
-            max_range=sensor_config.sensor_range, fov=sensor_config.fov,
+            max_range=sensor_config.sensor_range, fov=sensor_config.fov, min_range=sensor_config.sensor_min_range,
         )  # fmt: skip
     else:
         sensor = RangeBearingSensor(
             sigma_range=sensor_config.sigma_range, sigma_bearing=sensor_config.sigma_bearing,
-            max_range=sensor_config.sensor_range, fov=sensor_config.fov,
+            max_range=sensor_config.sensor_range, fov=sensor_config.fov, min_range=sensor_config.sensor_min_range,
         )  # fmt: skip
     return motion, sensor
 
@@ -336,6 +343,7 @@ class SeifExploreEnv(gym.Env):
     | `arena_extent` | `None` | `(width, height)` of a walled rectangle centred in the square (each at most `arena_size`; the observation's frame stays the square) |
     | `landmark_positions` | `None` | with `layout="fixed"`: the `num_landmarks` landmark positions `(x, y)` |
     | `sensor_range` | 5.0 | metres |
+    | `sensor_min_range` | 0.3 | metres: a landmark this close or closer is not seen (`-v2`; 0 in `-v0`/`-v1`, where a robot standing on a landmark made the SEIF's information matrix indefinite) |
     | `fov` | π | full opening angle of the sensor, radians |
     | `sigma_range`, `sigma_bearing` | 0.1, 2° | measurement noise |
     | `motion_noise` | (0.01, 0.001, 0.001, 0.01, 0.0005, 0.0005) | Thrun's α1…α6; with `motion_model="per_second"` nine noise densities per second: forward, turn and lateral, each `(constant, per v², per ω²)` (`PerSecondVelocityMotionModel`) |
@@ -361,6 +369,12 @@ class SeifExploreEnv(gym.Env):
 
     ## Version History
 
+    * v2 (seif_gym 0.3): the sensor does not see landmarks within 0.3 m
+      (`sensor_min_range`). Before, a robot driving over a landmark measured
+      it at millimetres, where the bearing's information grows as `1/r^2`: the
+      SEIF's information matrix reached 1e11 and turned indefinite (a training
+      run on `SeifExploreClusteredBudget-v1` stopped on the `LinAlgError` of
+      `info["pose_nees"]`). Everything else as in v1.
     * Budget tasks (seif_gym 0.3): `SeifExploreLoopBudget`, `SeifExploreBudget`
       and `SeifExploreClusteredBudget`, at every version: the loop, uniform and
       clustered layouts with 150, 150 and 100 steps, where the 400-step tasks
@@ -394,6 +408,7 @@ class SeifExploreEnv(gym.Env):
         arena_extent: tuple[float, float] | None = None,
         landmark_positions: tuple[tuple[float, float], ...] | None = None,
         sensor_range: float = 5.0,
+        sensor_min_range: float = 0.3,
         fov: float = math.pi,
         sigma_range: float = 0.1,
         sigma_bearing: float = math.radians(2.0),
@@ -435,7 +450,7 @@ class SeifExploreEnv(gym.Env):
         self.sensor_config = SensorConfig(
             sensor_range=sensor_range, fov=fov, sigma_range=sigma_range, sigma_bearing=sigma_bearing,
             range_noise=None if range_noise is None else tuple(range_noise),
-            range_error_time=range_error_time,
+            range_error_time=range_error_time, sensor_min_range=sensor_min_range,
         )  # fmt: skip
         self.filter_config = FilterConfig(
             filter=filter, max_active=max_active, data_association=data_association,

@@ -268,9 +268,12 @@ class VelocityMotionModel:
 
 @njit(cache=True)
 def _visible_measurements(
-    x: float, y: float, theta: float, landmarks: FloatArray, max_range: float, half_fov: float
+    x: float, y: float, theta: float, landmarks: FloatArray, max_range: float, half_fov: float, min_range: float
 ) -> tuple[NDArray[np.int64], FloatArray]:
-    """Indices and noise-free ``(range, bearing)`` of the visible landmarks (``sample``'s inner loop)."""
+    """Indices and noise-free ``(range, bearing)`` of the visible landmarks (``sample``'s inner loop).
+
+    Visible: ``min_range < r <= max_range`` and within the field of view.
+    """
     n = landmarks.shape[0]
     indices = np.empty(n, dtype=np.int64)
     z = np.empty((n, 2))
@@ -280,7 +283,7 @@ def _visible_measurements(
         dx = landmarks[i, 0] - x
         dy = landmarks[i, 1] - y
         r = np.sqrt(dx * dx + dy * dy)
-        if r > max_range or r <= 0.0:
+        if r > max_range or r <= min_range:
             continue
         bearing = (np.arctan2(dy, dx) - theta + np.pi) % (2.0 * np.pi) - np.pi
         if limited and abs(bearing) > half_fov:
@@ -306,6 +309,10 @@ class RangeBearingSensor:
     fov : float
         Full opening angle of the sensor, radians, centred on the heading;
         ``2 pi`` sees all around.
+    min_range : float
+        Landmarks at this distance or closer are not seen (a real sensor's
+        blind zone; it also keeps the bearing's ``1/r`` Jacobian bounded, whose
+        information grows as ``1/r^2`` when the robot stands on a landmark).
 
     Notes
     -----
@@ -320,10 +327,16 @@ class RangeBearingSensor:
         sigma_bearing: float = math.radians(2.0),
         max_range: float = 8.0,
         fov: float = 2.0 * math.pi,
+        min_range: float = 0.0,
     ) -> None:
         self.sigma_range = as_positive_scalar(sigma_range, "sigma_range")
         self.sigma_bearing = as_positive_scalar(sigma_bearing, "sigma_bearing")
         self.max_range = as_positive_scalar(max_range, "max_range")
+        if isinstance(min_range, bool) or not isinstance(min_range, (int, float, np.integer, np.floating)):
+            raise TypeError(f"min_range must be a real number, got {type(min_range).__name__}")
+        if not 0.0 <= float(min_range) < self.max_range:
+            raise ValueError(f"min_range must lie in [0, max_range), got {min_range!r}")
+        self.min_range = float(min_range)
         self.fov = as_positive_scalar(fov, "fov")
         if self.fov > 2.0 * math.pi + 1e-12:
             raise ValueError(f"fov must be at most 2*pi, got {self.fov}")
@@ -337,7 +350,7 @@ class RangeBearingSensor:
     def __repr__(self) -> str:
         return (
             f"RangeBearingSensor(sigma_range={self.sigma_range}, sigma_bearing={self.sigma_bearing}, "
-            f"max_range={self.max_range}, fov={self.fov})"
+            f"max_range={self.max_range}, fov={self.fov}, min_range={self.min_range})"
         )
 
     def measurement_covariances(self, ranges: ArrayLike) -> FloatArray:
@@ -421,7 +434,7 @@ class RangeBearingSensor:
         return self._visible(self.predict(pose, landmarks))
 
     def _visible(self, z: FloatArray) -> NDArray[np.bool_]:
-        mask = (z[:, 0] <= self.max_range) & (z[:, 0] > 0.0)
+        mask = (z[:, 0] <= self.max_range) & (z[:, 0] > self.min_range)
         if self.fov < 2.0 * math.pi:
             mask &= np.abs(z[:, 1]) <= 0.5 * self.fov
         return mask
@@ -449,7 +462,7 @@ class RangeBearingSensor:
     ) -> tuple[FloatArray, FloatArray, NDArray[np.int64]]:
         """:meth:`sample` without input checks, for the simulator's inner loop."""
         visible, z = _visible_measurements(
-            float(pose[0]), float(pose[1]), float(pose[2]), landmarks, self.max_range, 0.5 * self.fov
+            float(pose[0]), float(pose[1]), float(pose[2]), landmarks, self.max_range, 0.5 * self.fov, self.min_range
         )
         noise = rng.standard_normal((len(visible), 2))
         ranges = np.abs(z[:, 0] + noise[:, 0] * self.sigma_range)
@@ -470,7 +483,7 @@ class RangeBearingSensor:
         process that the caller keeps, ``seif_gym.world.World``); the bearing noise is drawn here, white.
         """
         visible, z = _visible_measurements(
-            float(pose[0]), float(pose[1]), float(pose[2]), landmarks, self.max_range, 0.5 * self.fov
+            float(pose[0]), float(pose[1]), float(pose[2]), landmarks, self.max_range, 0.5 * self.fov, self.min_range
         )
         ranges = np.abs(z[:, 0] + self.range_sigma(z[:, 0]) * unit_range_errors[visible])
         noise = rng.standard_normal(len(visible))

@@ -420,7 +420,7 @@ class RangeDependentSensor(RangeBearingSensor):
         ``a``: the range noise's standard deviation per metre of range.
     range_bounds : array_like of 2 floats, default (0.02, 0.5)
         ``(lo, hi)``, m, with ``0 < lo <= hi``.
-    sigma_bearing, max_range, fov
+    sigma_bearing, max_range, fov, min_range
         As for :class:`~seif_gym.slam.models.RangeBearingSensor`.
 
     Notes
@@ -447,19 +447,23 @@ class RangeDependentSensor(RangeBearingSensor):
         sigma_bearing: float = math.radians(2.0),
         max_range: float = 8.0,
         fov: float = 2.0 * math.pi,
+        min_range: float = 0.0,
     ) -> None:
         slope = as_positive_scalar(range_slope, "range_slope")
         bounds = as_finite_vector(range_bounds, "range_bounds", 2)
         if not 0.0 < bounds[0] <= bounds[1]:
             raise ValueError(f"range_bounds must satisfy 0 < lo <= hi, got {tuple(float(b) for b in bounds)}")
-        super().__init__(sigma_range=float(bounds[1]), sigma_bearing=sigma_bearing, max_range=max_range, fov=fov)
+        super().__init__(
+            sigma_range=float(bounds[1]), sigma_bearing=sigma_bearing, max_range=max_range, fov=fov, min_range=min_range
+        )
         self.range_slope = slope
         self.range_bounds: tuple[float, float] = (float(bounds[0]), float(bounds[1]))
 
     def __repr__(self) -> str:
         return (
             f"RangeDependentSensor(range_slope={self.range_slope}, range_bounds={self.range_bounds}, "
-            f"sigma_bearing={self.sigma_bearing}, max_range={self.max_range}, fov={self.fov})"
+            f"sigma_bearing={self.sigma_bearing}, max_range={self.max_range}, fov={self.fov}, "
+            f"min_range={self.min_range})"
         )
 
     def range_sigma(self, ranges: ArrayLike) -> FloatArray:

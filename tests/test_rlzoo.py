@@ -223,6 +223,17 @@ def test_rl_zoo3_tunes_with_the_shipped_config(tmp_path):
     assert isinstance(model.policy.features_extractor, BeliefExtractor)
 
 
+def test_every_task_of_the_newest_version_has_a_ppo_entry():
+    """agents.train reads the recipe by env id: each benchmark task (agents.benchmark.default_variants) has one."""
+    from agents.benchmark import default_variants
+    from agents.hyperparams import load
+
+    entries = load("ppo")
+    assert [env_id for env_id in default_variants() if env_id not in entries] == []
+    for algo in ("sac", "ppo_lstm"):  # the loop budget, where the algorithms were compared, at every version since 0.2
+        assert {"SeifExploreLoopBudget-v1", "SeifExploreLoopBudget-v2"} <= set(load(algo))
+
+
 def test_the_config_loads_by_module_name_as_by_path():
     import yaml
 

@@ -428,12 +428,13 @@ def prepare(args: argparse.Namespace) -> tuple[Any, Any]:
     return experiment, model
 
 
-def train(args: argparse.Namespace, prepared: tuple[Any, Any] | None = None) -> Path:
-    """Train and save; returns the run's folder.
+def train(args: argparse.Namespace) -> Path:
+    """Train and save; returns the run's folder."""
+    return _learn_and_save(args, *prepare(args))
 
-    ``prepared`` is ``prepare(args)``'s result when the caller made it already.
-    """
-    experiment, model = prepare(args) if prepared is None else prepared
+
+def _learn_and_save(args: argparse.Namespace, experiment: Any, model: Any) -> Path:
+    """:func:`train` after :func:`prepare`: learn, save the model and the wall time, report."""
     started = time.perf_counter()
     experiment.learn(model)
     elapsed = time.perf_counter() - started
@@ -452,11 +453,11 @@ def train(args: argparse.Namespace, prepared: tuple[Any, Any] | None = None) -> 
 def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
-        prepared = prepare(args)
+        experiment, model = prepare(args)
     except (ValueError, FileNotFoundError) as error:  # a bad argument or config: one line, no traceback
         raise SystemExit(f"agents.train: {error}") from error
     # an error during training (numpy's LinAlgError is a ValueError too) keeps its traceback
-    train(args, prepared)
+    _learn_and_save(args, experiment, model)
     return 0
 
 

@@ -324,6 +324,19 @@ def test_sb3_agent_loads_a_checkpoints_own_statistics(small_model, tmp_path):
         assert np.all(agent.vecnormalize.obs_rms["pose"].mean == mean), path
 
 
+def test_an_error_during_training_keeps_its_traceback(tmp_path, monkeypatch):
+    """Only prepare's errors become a one-line exit; numpy's LinAlgError (a ValueError) in learning propagates."""
+    import agents.train as train_module
+
+    class Failing:
+        def learn(self, model):
+            raise np.linalg.LinAlgError("Matrix is not positive definite.")
+
+    monkeypatch.setattr(train_module, "prepare", lambda args: (Failing(), None))
+    with pytest.raises(np.linalg.LinAlgError, match="positive definite"):
+        main([*SMALL, "--out", str(tmp_path)])
+
+
 # -- SAC and RecurrentPPO ----------------------------------------------------------------------------
 @pytest.mark.parametrize(
     "algo, algorithm, tiny",

@@ -262,6 +262,87 @@ def test_compiled_jcbb_returns_the_reference_hypothesis(seed):
     reference = jcbb(nu, cov, pair_meas, pair_landmark, gate, max_nodes, initial=initial, compiled=False)
     compiled = jcbb(nu, cov, pair_meas, pair_landmark, gate, max_nodes, initial=initial)
     np.testing.assert_array_equal(compiled, reference)
+    # ranked by likelihood: the same again (a loose noise bound on half the seeds: a search that cuts less)
+    gains, noise_logdet = random_gains(rng, pair_meas), float(np.log(0.05 * 0.02)) - (seed % 2) * 3.0
+    reference = jcbb(nu, cov, pair_meas, pair_landmark, gate, max_nodes, initial=initial, compiled=False,
+                     gains=gains, noise_logdet=noise_logdet)  # fmt: skip
+    compiled = jcbb(nu, cov, pair_meas, pair_landmark, gate, max_nodes, initial=initial, gains=gains,
+                    noise_logdet=noise_logdet)  # fmt: skip
+    np.testing.assert_array_equal(compiled, reference)
+
+
+def brute_force_likelihood_jcbb(nu, cov, pair_meas, pair_landmark, gate, gains):
+    """Every joint hypothesis enumerated: the largest ``sum(gains) - (d2 + ln det S) / 2`` passing the joint gate."""
+    import itertools
+
+    import scipy.stats
+
+    measurements = sorted(set(pair_meas.tolist()))
+    options = [[None] + np.flatnonzero(pair_meas == i).tolist() for i in measurements]
+    best = (0.0, [])  # the empty hypothesis scores 0
+    for choice in itertools.product(*options):
+        pairs = [k for k in choice if k is not None]
+        landmarks = [int(pair_landmark[k]) for k in pairs]
+        if not pairs or len(set(landmarks)) < len(landmarks):
+            continue
+        idx = np.array([2 * k + a for k in pairs for a in (0, 1)])
+        S = cov[np.ix_(idx, idx)]
+        v = nu[pairs].reshape(-1)
+        d2 = float(v @ np.linalg.solve(S, v))
+        if d2 > scipy.stats.chi2.ppf(gate, 2 * len(pairs)):
+            continue
+        score = float(gains[pairs].sum()) - 0.5 * (d2 + float(np.linalg.slogdet(S)[1]))
+        if score > best[0] + 1e-9:
+            best = (score, sorted(pairs))
+    return best
+
+
+def random_gains(rng: np.random.Generator, pair_meas: np.ndarray) -> np.ndarray:
+    """Per-pair gains around the break-even of a pairing against a new landmark (some negative)."""
+    return rng.normal(loc=1.0, scale=2.0, size=len(pair_meas))
+
+
+@pytest.mark.parametrize("seed", range(40))
+def test_likelihood_jcbb_equals_brute_force_enumeration(seed):
+    """With ``gains``, the search returns the hypothesis of largest likelihood ratio, not the most pairings."""
+    from seif_gym.slam.association import jcbb
+
+    rng = np.random.default_rng(2000 + seed)
+    nu, cov, pair_meas, pair_landmark = random_association_problem(rng)
+    gains = random_gains(rng, pair_meas)
+    gate = float(rng.choice([0.9, 0.99, 0.999]))
+    # the sensor-noise bound of the search: random_association_problem adds diag(0.05, 0.02) to every block
+    noise_logdet = float(np.log(0.05 * 0.02))
+    score, pairs = brute_force_likelihood_jcbb(nu, cov, pair_meas, pair_landmark, gate, gains)
+    for compiled in (True, False):
+        found = jcbb(nu, cov, pair_meas, pair_landmark, gate=gate, max_nodes=10**6, compiled=compiled,
+                     gains=gains, noise_logdet=noise_logdet)  # fmt: skip
+        assert found.tolist() == pairs, (compiled, score)
+
+
+def test_likelihood_jcbb_prefers_one_good_pairing_to_two_poor_ones():
+    """The case of the loop runs: two poor pairings pass the joint gate where one good one explains the scan.
+
+    Counting pairings takes the two; the likelihood ratio against new landmarks takes the good one, unless
+    new landmarks are unlikely where the two measurements lie.
+    """
+    from seif_gym.slam.association import jcbb
+
+    # pairs: 0 = measurement 0 -> landmark 0 (d2 1); 1 = measurement 1 -> landmark 0 and 2 = measurement 2 ->
+    # landmark 1 (d2 6.25 each); pairs 0 and 2 are strongly correlated (a shared pose) and jointly incompatible
+    nu = np.array([[1.0, 0.0], [2.5, 0.0], [2.5, 0.0]])
+    cov = np.eye(6)
+    cov[0, 4] = cov[4, 0] = -0.95
+    pair_meas, pair_landmark = np.array([0, 1, 2]), np.array([0, 0, 1])
+    assert jcbb(nu, cov, pair_meas, pair_landmark, gate=0.999).tolist() == [1, 2]
+    # measurements 1 and 2 about as likely new landmarks as not: 5 - 1/2 beats 3 + 3 - 12.5/2
+    gains = np.array([5.0, 3.0, 3.0])
+    assert jcbb(nu, cov, pair_meas, pair_landmark, gate=0.999, gains=gains, noise_logdet=0.0).tolist() == [0]
+    # where a new landmark is unlikely (a well-covered place), the two pairings win again: 6 + 6 - 6.25 > 4.5
+    gains = np.array([5.0, 6.0, 6.0])
+    assert jcbb(nu, cov, pair_meas, pair_landmark, gate=0.999, gains=gains, noise_logdet=0.0).tolist() == [1, 2]
+    with pytest.raises(ValueError, match="gains"):
+        jcbb(nu, cov, pair_meas, pair_landmark, gains=np.zeros(2))
 
 
 def test_conditional_loglik_is_the_chain_rule():
@@ -333,9 +414,13 @@ def test_individual_preset_reproduces_the_original_associator(filter_class):
 def test_make_associator_presets_and_overrides():
     from seif_gym.slam.association import ASSOCIATOR_PRESETS, make_associator
 
-    assert set(ASSOCIATOR_PRESETS) == {"individual", "joint", "revisable"}
+    assert set(ASSOCIATOR_PRESETS) == {"individual", "joint", "revisable", "likelihood"}
     revisable = make_associator("revisable")
     assert revisable.joint and revisable.loop_merge and revisable.tentative_closures
+    assert revisable.joint_objective == "pairings" and revisable.exclusion_margin is None
+    likelihood = make_associator("likelihood")
+    assert likelihood.loop_merge and likelihood.tentative_closures and likelihood.joint_objective == "likelihood"
+    assert likelihood.gate == 0.9999 and likelihood.exclusion_margin == pytest.approx(9.21, abs=0.01)
     individual = make_associator("individual")
     assert not individual.joint and individual.landmark_density == 0.0 and individual.blanket_size == 0
     assert individual.detection == 0.0
@@ -414,3 +499,27 @@ def test_lone_loop_closures_are_deferred_until_backed():
         filt.predict(run.controls[t], run.dt)
         associator.update(filt, run.ranges[t], run.bearings[t])
     assert associator.stats.deferred == 0
+
+
+def test_exclusion_margin_lets_a_landmark_start_next_to_one_measured_in_the_same_scan():
+    """A tree 0.6 m beside a mapped one, both measured at 3 m: its d2 to the mapped tree is 16 (between the gate, 13.8,
+    and the new-landmark threshold, 23). The other measurement takes the mapped tree with d2 0, so by mutual exclusion
+    the first is a new landmark; without ``exclusion_margin`` it is discarded as ambiguous.
+    """
+    sensor = RangeBearingSensor(max_range=5.0, fov=math.pi)
+    ranges, bearings = np.array([3.0, math.hypot(3.0, 0.6)]), np.array([0.0, math.atan2(0.6, 3.0)])
+    decisions = {}
+    for margin in (None, 9.2, 20.0):
+        filt = EKF(VelocityMotionModel(), sensor, np.zeros(3))
+        associator = Associator(exclusion_margin=margin)
+        assert associator.update(filt, ranges[:1], bearings[:1]).tolist() == [0]
+        filt.predict(np.zeros(2), 0.25)
+        d2 = associator.distances(filt, ranges, bearings)[2]
+        assert d2[0] < 1e-9 and associator.thresholds()[0] < d2[1] < associator.thresholds()[1]
+        decisions[margin] = associator.update(filt, ranges, bearings).tolist()
+    assert decisions == {None: [0, -1], 9.2: [0, 1], 20.0: [0, -1]}  # 16 - 0 < 20: still too close to call
+    for bad in (-1.0, float("nan"), "9"):
+        with pytest.raises((ValueError, TypeError), match="exclusion_margin"):
+            Associator(exclusion_margin=bad)
+    with pytest.raises(ValueError, match="joint_objective"):
+        Associator(joint_objective="most")

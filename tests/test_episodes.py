@@ -39,6 +39,7 @@ CASES = [
     ("SeifExploreLoop-v1", (("data_association", "ml"),)),
     ("SeifExploreLoop-v1", (("data_association", "ml"), ("ml_association", "joint"))),
     ("SeifExploreLoop-v1", (("data_association", "ml"), ("ml_association", "revisable"))),
+    ("SeifExploreLoop-v2", (("data_association", "ml"), ("ml_association", "likelihood"))),
     ("SeifExploreLoop-v0", (("data_association", "ml"),)),
     ("SeifExplore-v0", ()),
     ("SeifExplore-v0", (("max_active", 4),)),

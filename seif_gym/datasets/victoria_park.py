@@ -408,6 +408,10 @@ class RunConfig:
     * ``initial_heading_deg`` 36: the usual start heading in the GPS frame.
     * ``revisable`` False: ``--revisable`` lets the associator take decisions
       back (merges and tentative closures, the ``"revisable"`` preset).
+    * ``likelihood`` False: ``--likelihood`` uses the ``"likelihood"`` preset
+      (``"revisable"`` with the joint hypotheses ranked by likelihood, its
+      gate, and new landmarks beside a landmark another measurement took);
+      the preset's gate replaces ``gate``.
     """
 
     sigma_speed: float = 0.5
@@ -427,6 +431,7 @@ class RunConfig:
     blanket_neighbours: bool | int = 4
     initial_heading_deg: float = 36.0
     revisable: bool = False
+    likelihood: bool = False
 
 
 #: Trunk-diameter signature settings of --signature (Associator's signature_sigma, signature_per_metre).
@@ -582,18 +587,21 @@ def run(
 def _setup(data: VictoriaPark, filter_name: str, config: RunConfig) -> tuple[SlamFilter, Associator]:
     """A fresh filter at the start pose and a fresh associator."""
     from seif_gym.slam import FILTERS
-    from seif_gym.slam.association import Associator
+    from seif_gym.slam.association import ASSOCIATOR_PRESETS, Associator
 
     motion, sensor = make_models(config)
     options = {"max_active": config.max_active} if filter_name in ("seif", "eseif") else {}
     initial = np.array([data.gps.x[0], data.gps.y[0], math.radians(config.initial_heading_deg)])
     filt = FILTERS[filter_name](motion, sensor, initial, **options)
-    associator = Associator(
+    association: dict[str, Any] = dict(
         gate=config.gate, new_landmark=config.new_landmark, candidate_radius=config.candidate_radius,
         min_separation=config.min_separation, signature_sigma=config.signature_sigma,
         signature_per_metre=config.signature_per_metre, neighbours=config.blanket_neighbours,
         loop_merge=config.revisable, tentative_closures=config.revisable,
     )  # fmt: skip
+    if config.likelihood:
+        association.update(ASSOCIATOR_PRESETS["likelihood"])
+    associator = Associator(**association)
     return filt, associator
 
 
@@ -823,6 +831,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         action="store_true",
         help="merge duplicates back and keep deferred lone closures as tentative landmarks",
     )
+    parser.add_argument("--likelihood", action="store_true",
+                        help="the 'likelihood' preset: revisable, joint hypotheses ranked by likelihood")  # fmt: skip
     parser.add_argument("--max-active", type=int, default=RunConfig.max_active, help="SEIF/ESEIF active landmarks")
     parser.add_argument("--blas-threads", type=int, default=1, help="BLAS threads (default 1; 0 leaves BLAS alone)")
     args = parser.parse_args(argv)
@@ -833,7 +843,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     except (FileNotFoundError, ValueError) as error:
         print(f"error: {error}", file=sys.stderr)
         return 2
-    config = RunConfig(max_active=args.max_active, revisable=args.revisable)
+    config = RunConfig(max_active=args.max_active, revisable=args.revisable, likelihood=args.likelihood)
     if args.signature:
         config = dataclasses.replace(config, **SIGNATURE_SETTINGS)
     result = run(data, args.filter, steps=args.steps, config=config, progress=not args.quiet,

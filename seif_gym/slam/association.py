@@ -42,7 +42,13 @@ Algorithm, per scan (Probabilistic Robotics, sections 10.3 and 12.7)
    *joint* Mahalanobis distance (joint innovation covariance of all its
    pairings, :func:`joint_innovation_covariance`) passes the ``joint_gate``
    chi-square bound with ``2 |H|`` dof; ties go to the smallest joint
-   ``d2 + ln det S``. Budget ``max_nodes`` per scan.
+   ``d2 + ln det S``. Budget ``max_nodes`` per scan. With
+   ``joint_objective="likelihood"`` the hypothesis maximises instead
+   ``sum_k (-ln 2 pi - ln lambda_k) - (d2_H + ln det S_H) / 2``, its
+   log-likelihood ratio against "every measurement of it is an unmapped
+   landmark" (``lambda_k`` the density of step 5): counting pairings takes two
+   unmapped trees that fall inside the gates of two old landmarks over the one
+   old landmark really in view.
 5. **Pairing or new landmark** (loop closure). For each pairing of the
    hypothesis, its likelihood given the others (:func:`conditional_loglik`)
    is compared with the likelihood that the measurement is an unmapped
@@ -66,7 +72,9 @@ Algorithm, per scan (Probabilistic Robotics, sections 10.3 and 12.7)
 7. **New landmarks.** A measurement left without a landmark is a new
    landmark if its smallest ``d2`` to any landmark exceeds the larger
    threshold ``new_landmark`` (a chi-square probability too); otherwise it is
-   ambiguous and discarded with id ``-1``. With ``min_separation`` a
+   ambiguous and discarded with id ``-1``; with ``exclusion_margin``, a
+   landmark that another measurement of the scan took with a ``d2`` smaller by
+   that margin does not count (mutual exclusion). With ``min_separation`` a
    measurement that projects closer than that to a mapped landmark is never
    a new landmark either (a prior on the map: real trees are not 1 m apart).
 8. **Merges** (``loop_merge``, off by default). Every ``merge_every`` scans
@@ -80,7 +88,10 @@ Algorithm, per scan (Probabilistic Robotics, sections 10.3 and 12.7)
    tentative landmark instead of being discarded, merged into its old one
    once a closure is accepted and the correspondence test passes. The
    ``"revisable"`` preset turns both on: 99.64% (EKF) / 99.56% (SEIF) correct,
-   0.21% / 0.58% duplicates on the runs below (``docs/fidelity.md``).
+   0.21% / 0.58% duplicates on the runs below (``docs/fidelity.md``). The
+   ``"likelihood"`` preset adds ``joint_objective="likelihood"``, a 0.9999
+   gate and ``exclusion_margin``: the issue's targets also on seeds the design
+   never saw (``docs/fidelity.md``).
 
 For SEIF-type filters the covariance of step 2 comes from
 :func:`seif_gym.slam.marginals.breadth_first_joint_covariance` (a block of at
@@ -309,7 +320,15 @@ class _JointSearch:
     """
 
     def __init__(
-        self, nu: FloatArray, cov: FloatArray, pair_meas: IntArray, pair_landmark: IntArray, gate: float, max_nodes: int
+        self,
+        nu: FloatArray,
+        cov: FloatArray,
+        pair_meas: IntArray,
+        pair_landmark: IntArray,
+        gate: float,
+        max_nodes: int,
+        gains: FloatArray | None = None,
+        noise_logdet: float = -np.inf,
     ) -> None:
         self.nu, self.cov = nu, cov
         self.pair_landmark = pair_landmark
@@ -319,15 +338,37 @@ class _JointSearch:
         self.limits = [_chi2_limit(float(gate), 2 * p) if p else 0.0 for p in range(len(options) + 1)]
         self.max_nodes = max_nodes
         self.nodes = 0
-        self.best: tuple[int, float, list[int]] = (0, 0.0, [])
+        self.gains = gains
+        self.remaining = _remaining_gains(gains, options, noise_logdet) if gains is not None else None
+        # (pairings, d2 + ln det S_H, score, pairs) of the best hypothesis so far; the empty one to start
+        self.best: tuple[int, float, float, list[int]] = (0, 0.0, 0.0, [])
+
+    def score(self, pairs: list[int], cost: float) -> float:
+        """With ``gains``: ``sum_k gains[k] - (d2_H + ln det S_H) / 2``, the objective maximised.
+
+        With ``gains[k] = -ln(2 pi) - ln(lambda_k)`` (``lambda_k`` the density of the measurement
+        under "a new landmark") this is the log-likelihood ratio of the hypothesis against "every
+        measurement a new landmark".
+        """
+        assert self.gains is not None
+        return float(sum(self.gains[k] for k in pairs)) - 0.5 * cost
+
+    def _better(self, pairs: list[int], cost: float) -> bool:
+        count, best_cost, best_score, _ = self.best
+        if self.gains is not None:
+            return self.score(pairs, cost) > best_score
+        return len(pairs) > count or (len(pairs) == count and cost < best_cost)
+
+    def _record(self, pairs: list[int], cost: float) -> None:
+        self.best = (len(pairs), cost, self.score(pairs, cost) if self.gains is not None else 0.0, list(pairs))
 
     def run(self, initial: list[int] | None = None) -> list[int]:
         if initial:
             state = self._state_of(initial)
-            if state is not None:
-                self.best = (len(initial), state[2] + state[3], list(initial))
+            if state is not None and (self.gains is None or self._better(list(initial), state[2] + state[3])):
+                self._record(list(initial), state[2] + state[3])
         self._search(0, [], np.zeros((0, 0)), np.zeros(0), 0.0, 0.0, set())
-        return self.best[2]
+        return self.best[3]
 
     def _state_of(self, pairs: list[int]) -> tuple[FloatArray, FloatArray, float, float] | None:
         state: tuple[list[int], FloatArray, FloatArray, float, float] = ([], np.zeros((0, 0)), np.zeros(0), 0.0, 0.0)
@@ -379,10 +420,9 @@ class _JointSearch:
         used: set[int],
     ) -> None:
         self.nodes += 1
-        best_count, best_cost, _ = self.best
         if level == len(self.options):
-            if len(pairs) > best_count or (len(pairs) == best_count and d2 + logdet < best_cost):
-                self.best = (len(pairs), d2 + logdet, list(pairs))
+            if self._better(pairs, d2 + logdet):
+                self._record(pairs, d2 + logdet)
             return
         for k in self.options[level]:
             if self.nodes >= self.max_nodes:
@@ -396,8 +436,23 @@ class _JointSearch:
             grown_lower, grown_white, grown_d2, grown_logdet = grown
             self._search(level + 1, pairs + [int(k)], grown_lower, grown_white, grown_d2, grown_logdet, used)
             used.discard(int(self.pair_landmark[k]))
-        if len(pairs) + len(self.options) - level - 1 >= self.best[0] and self.nodes < self.max_nodes:
+        if self.remaining is not None:  # the skip branch can still beat the best: cut it otherwise
+            promising = self.score(pairs, d2 + logdet) + self.remaining[level + 1] > self.best[2]
+        else:
+            promising = len(pairs) + len(self.options) - level - 1 >= self.best[0]
+        if promising and self.nodes < self.max_nodes:
             self._search(level + 1, pairs, lower, white, d2, logdet, used)
+
+
+def _remaining_gains(gains: FloatArray, options: list[IntArray], noise_logdet: float) -> FloatArray:
+    """``remaining[l]``: an upper bound on what levels ``l, l+1, ...`` can add to the score.
+
+    A pairing adds ``gains[k] - (delta d2 + delta ln det) / 2``; ``delta d2 >= 0``, and the
+    conditional innovation covariance of a pairing is at least the sensor noise (``S_H`` is a
+    covariance plus the noise's block diagonal), so ``delta ln det >= noise_logdet``.
+    """
+    best = np.array([max(0.0, float(np.max(gains[o])) - 0.5 * noise_logdet) for o in options])
+    return np.concatenate([np.cumsum(best[::-1])[::-1], [0.0]])
 
 
 @functools.lru_cache(maxsize=4096)
@@ -416,13 +471,17 @@ def _jcbb_compiled(
     limits: FloatArray,
     max_nodes: int,
     initial: IntArray,
+    gains: FloatArray,
+    remaining: FloatArray,
+    by_likelihood: bool,
 ) -> IntArray:
     """:class:`_JointSearch`, compiled: the same depth-first order, cuts, ties and node budget.
 
     Level ``l`` (a measurement) has the options ``option_pairs[option_start[l]:option_start[l + 1]]``.
     The recursion is unrolled into per-level arrays; the Cholesky factor of ``S_H`` grows by one
     block row per pairing, so the prefix of ``lower`` is the factor at every depth (backtracking
-    only forgets rows). Returns the chosen pairs (unsorted).
+    only forgets rows). With ``by_likelihood`` the objective is :meth:`_JointSearch.score` and
+    ``remaining[l]`` bounds what levels ``l..`` can still add to it. Returns the chosen pairs (unsorted).
     """
     levels = option_start.shape[0] - 1
     size = 2 * levels + 2
@@ -430,10 +489,12 @@ def _jcbb_compiled(
     white = np.zeros(size)
     d2s = np.zeros(levels + 2)
     logdets = np.zeros(levels + 2)
+    gain_sums = np.zeros(levels + 2)
     chosen = np.zeros(levels + 1, dtype=np.int64)
     used = np.zeros(int(pair_landmark.max()) + 1 if pair_landmark.shape[0] else 1, dtype=np.bool_)
     best_count: int = 0  # declared: initial.shape[0] is Any to numpy's stubs
     best_cost = 0.0
+    best_score = 0.0  # the empty hypothesis
     best = np.zeros(levels + 1, dtype=np.int64)
     # the initial hypothesis, extended in its order; it is the incumbent when it passes the gate
     ok = True
@@ -442,10 +503,16 @@ def _jcbb_compiled(
             ok = False
             break
         chosen[p] = initial[p]
+        gain_sums[p + 1] = gain_sums[p] + gains[initial[p]]
     if ok and initial.shape[0] > 0:
-        best_count = initial.shape[0]
-        best_cost = d2s[best_count] + logdets[best_count]
-        best[:best_count] = initial
+        count = initial.shape[0]
+        initial_cost = float(d2s[count] + logdets[count])
+        initial_score = float(gain_sums[count]) - 0.5 * initial_cost
+        if not by_likelihood or initial_score > best_score:
+            best_count = count
+            best_cost = initial_cost
+            best_score = initial_score
+            best[:count] = initial
     nodes = 0
     next_option = np.zeros(levels + 1, dtype=np.int64)
     npairs = np.zeros(levels + 2, dtype=np.int64)
@@ -459,9 +526,15 @@ def _jcbb_compiled(
             p = npairs[level]
             if level == levels:
                 cost = d2s[p] + logdets[p]
-                if p > best_count or (p == best_count and cost < best_cost):
+                score = gain_sums[p] - 0.5 * cost
+                if by_likelihood:
+                    improves = score > best_score
+                else:
+                    improves = p > best_count or (p == best_count and cost < best_cost)
+                if improves:
                     best_count = p
                     best_cost = cost
+                    best_score = score
                     best[:p] = chosen[:p]
                 level -= 1
                 if level >= 0 and taken[level] >= 0:
@@ -483,6 +556,7 @@ def _jcbb_compiled(
             if not _grow(nu, cov, lower, white, d2s, logdets, chosen, p, k, limits):
                 continue
             chosen[p] = k
+            gain_sums[p + 1] = gain_sums[p] + gains[k]
             used[pair_landmark[k]] = True
             taken[level] = k
             npairs[level + 1] = p + 1
@@ -494,7 +568,11 @@ def _jcbb_compiled(
             continue
         if next_option[level] == end:
             next_option[level] = end + 1
-            if p + levels - level - 1 >= best_count and nodes < max_nodes:
+            if by_likelihood:
+                promising = gain_sums[p] - 0.5 * (d2s[p] + logdets[p]) + remaining[level + 1] > best_score
+            else:
+                promising = p + levels - level - 1 >= best_count
+            if promising and nodes < max_nodes:
                 taken[level] = -1
                 npairs[level + 1] = p
                 level += 1
@@ -576,6 +654,8 @@ def jcbb(
     max_nodes: int = 5000,
     initial: list[int] | None = None,
     compiled: bool = True,
+    gains: FloatArray | None = None,
+    noise_logdet: float = -np.inf,
 ) -> IntArray:
     """Joint compatibility branch and bound over candidate pairs (see :class:`_JointSearch`).
 
@@ -596,6 +676,12 @@ def jcbb(
     compiled : bool
         Run the compiled search (``_jcbb_compiled``, about 20x faster) rather than the plain-Python
         reference :class:`_JointSearch`; both return the same hypothesis.
+    gains : ndarray, shape (K,), optional
+        Rank the jointly compatible hypotheses by likelihood rather than by their number of
+        pairings: maximise ``sum_k gains[k] - (d2_H + ln det S_H) / 2`` (:meth:`_JointSearch.score`).
+    noise_logdet : float
+        With ``gains``: a lower bound on ``ln det`` of any pairing's conditional innovation
+        covariance (that of the sensor noise), which bounds the search; ``-inf`` searches everything.
 
     Returns
     -------
@@ -604,8 +690,12 @@ def jcbb(
     """
     pair_meas = np.asarray(pair_meas, dtype=np.int64)
     pair_landmark = np.asarray(pair_landmark, dtype=np.int64)
+    if gains is not None:
+        gains = np.ascontiguousarray(gains, dtype=np.float64)
+        if gains.shape != pair_meas.shape:
+            raise ValueError(f"gains must have one entry per pair, shape {pair_meas.shape}, got {gains.shape}")
     if not compiled:
-        search = _JointSearch(nu, cov, pair_meas, pair_landmark, gate, max_nodes)
+        search = _JointSearch(nu, cov, pair_meas, pair_landmark, gate, max_nodes, gains, noise_logdet)
         return np.array(sorted(search.run(initial)), dtype=np.int64)
     order = np.argsort(pair_meas, kind="stable")  # each measurement's options in increasing pair order
     levels = len(np.unique(pair_meas))
@@ -613,6 +703,11 @@ def jcbb(
     option_start[1:] = np.cumsum(np.unique(pair_meas, return_counts=True)[1])
     limits = np.array([0.0] + [_chi2_limit(float(gate), 2 * p) for p in range(1, levels + 1)])
     start = np.asarray(initial if initial else [], dtype=np.int64)
+    if gains is None:
+        pair_gains, remaining = np.zeros(len(pair_meas)), np.zeros(levels + 1)
+    else:
+        options = [order[option_start[level] : option_start[level + 1]] for level in range(levels)]
+        pair_gains, remaining = gains, _remaining_gains(gains, options, noise_logdet)
     found = _jcbb_compiled(
         np.ascontiguousarray(nu, dtype=np.float64),
         np.ascontiguousarray(cov, dtype=np.float64),
@@ -622,6 +717,9 @@ def jcbb(
         limits,
         int(max_nodes),
         start,
+        pair_gains,
+        remaining,
+        gains is not None,
     )
     return np.sort(found).astype(np.int64)
 
@@ -918,6 +1016,19 @@ class Associator:
         joint marginal of ``m_old - m_new`` (the ``gate``), it is merged into
         the old one; after ``closure_window`` scans it stays a landmark of its
         own.
+    exclusion_margin : float or None
+        Mutual exclusion for new landmarks (step 7): a landmark taken by
+        another measurement of the scan whose ``d2`` is smaller by at least
+        this much no longer stops a measurement from starting a new landmark
+        (the swapped assignment is ``exp(margin / 2)`` times less likely).
+        ``None`` (the default): every gated landmark stops it.
+    joint_objective : {"pairings", "likelihood"}
+        What the branch and bound maximises among the jointly compatible
+        hypotheses (step 4): the number of pairings (Neira & Tardos; the
+        default), or the likelihood ratio of the hypothesis against "each of
+        its measurements is an unmapped landmark", with the density of step 5
+        (:func:`jcbb`'s ``gains``), so that one good pairing can beat two poor
+        ones where new landmarks are plausible.
 
     Notes
     -----
@@ -957,6 +1068,8 @@ class Associator:
         merge_rotation: float = 10.0,
         merge_shift: float = 3.0,
         tentative_closures: bool = False,
+        exclusion_margin: float | None = None,
+        joint_objective: str = "pairings",
     ) -> None:
         for name, value in (("gate", gate), ("new_landmark", new_landmark)):
             if not isinstance(value, (int, float)) or not 0.0 < float(value) < 1.0:
@@ -1018,6 +1131,16 @@ class Associator:
             if not isinstance(flag, bool):
                 raise TypeError(f"{name} must be a bool, got {type(flag).__name__}")
         self.tentative_closures = tentative_closures
+        if exclusion_margin is not None:
+            if isinstance(exclusion_margin, bool) or not isinstance(exclusion_margin, (int, float)):
+                raise TypeError(f"exclusion_margin must be a number or None, got {type(exclusion_margin).__name__}")
+            if not math.isfinite(exclusion_margin) or exclusion_margin < 0:
+                raise ValueError(f"exclusion_margin must be non-negative and finite, got {exclusion_margin!r}")
+            exclusion_margin = float(exclusion_margin)
+        self.exclusion_margin = exclusion_margin
+        if joint_objective not in ("pairings", "likelihood"):
+            raise ValueError(f"joint_objective must be 'pairings' or 'likelihood', got {joint_objective!r}")
+        self.joint_objective = joint_objective
         #: tentative landmark id -> (the old landmark id it may be, the scan that started it)
         self.tentatives: dict[int, tuple[int, int]] = {}
         self._deferred = np.empty(0, dtype=np.int64)  # pairs of the last scan's deferred lone closures
@@ -1191,7 +1314,8 @@ class Associator:
         # new landmark: far from every mapped landmark (also those other measurements took: an
         # unmapped landmark next to a mapped one is ambiguous until the robot can tell them apart)
         best = np.full(m, np.inf)
-        np.minimum.at(best, pair_meas, d2)
+        considered = self._unexcluded(pair_meas, pair_landmark, d2, chosen)
+        np.minimum.at(best, pair_meas[considered], d2[considered])
         new = (ids < 0) & (best > new_threshold)
         if self.min_separation > 0.0 and len(pair_meas):
             # and not closer than min_separation to a mapped landmark (a physical prior on the map)
@@ -1231,6 +1355,19 @@ class Associator:
             for k in np.flatnonzero(ids >= 0).tolist():
                 self.signatures.add(int(ids[k]), float(values[k]))
         return ids
+
+    def _unexcluded(self, pair_meas: IntArray, pair_landmark: IntArray, d2: FloatArray, chosen: IntArray) -> np.ndarray:
+        considered = np.ones(len(pair_meas), dtype=bool)
+        if self.exclusion_margin is None or not len(chosen):
+            return considered
+        order = np.argsort(pair_landmark[chosen])
+        taken_landmark = pair_landmark[chosen][order]
+        taken_d2 = d2[chosen][order]
+        taken_meas = pair_meas[chosen][order]
+        pos = np.minimum(np.searchsorted(taken_landmark, pair_landmark), len(taken_landmark) - 1)
+        hit = taken_landmark[pos] == pair_landmark
+        excluded = hit & (taken_meas[pos] != pair_meas) & (d2 - taken_d2[pos] >= self.exclusion_margin)
+        return ~excluded
 
     def _merge(self, filt: SlamFilter, keep: int, remove: int) -> None:
         """``filt.merge_landmarks(keep, remove)`` and the associator's own records of ``remove`` folded into ``keep``."""
@@ -1325,17 +1462,22 @@ class Associator:
         position = {int(k): p for p, k in enumerate(gated.tolist())}
         seed = [position[int(k)] for k in chosen.tolist()]
         local = np.array(seed, dtype=np.int64)
-        if self.joint and len(np.unique(pair_meas[gated])) > 1:
-            local = jcbb(nu, cov, pair_meas[gated], pair_landmark[gated], self.joint_gate, self.max_nodes,
-                         initial=seed)  # fmt: skip
+        log_new = np.empty(0)
         if self.landmark_density > 0.0:
-            k = gated[local]
-            r = ranges[pair_meas[k]]
-            sigma2 = r * np.exp(0.5 * logdet[k])  # isotropic Cartesian variance of the projected offset
-            inside = scipy.stats.ncx2.cdf(self.landmark_separation**2 / sigma2, 2, euclid2[k] / sigma2)
-            points = self._last_points[pair_meas[k]]
-            unseen = (1.0 - self.detection) ** self._coverage.counts(points)
+            # ln of the density of each gated pair's measurement under "an unmapped landmark"
+            r = ranges[pair_meas[gated]]
+            sigma2 = r * np.exp(0.5 * logdet[gated])  # isotropic Cartesian variance of the projected offset
+            inside = scipy.stats.ncx2.cdf(self.landmark_separation**2 / sigma2, 2, euclid2[gated] / sigma2)
+            unseen = (1.0 - self.detection) ** self._coverage.counts(self._last_points[pair_meas[gated]])
             log_new = np.log(self.landmark_density * r * np.maximum((1.0 - inside) * unseen, 1e-300))
+        if self.joint and len(np.unique(pair_meas[gated])) > 1:
+            gains = None  # rank the hypotheses by their number of pairings
+            if self.joint_objective == "likelihood" and len(log_new):
+                gains = -math.log(2.0 * math.pi) - log_new  # by the likelihood ratio against new landmarks
+            local = jcbb(nu, cov, pair_meas[gated], pair_landmark[gated], self.joint_gate, self.max_nodes,
+                         initial=seed, gains=gains, noise_logdet=float(np.linalg.slogdet(noise)[1]))  # fmt: skip
+        if self.landmark_density > 0.0:
+            log_new = log_new[local]
             keep = np.ones(len(local), dtype=bool)
             while keep.any():
                 margin = conditional_loglik(nu, cov, local[keep]) - log_new[keep]
@@ -1500,11 +1642,21 @@ class AssociationAudit:
 #: Named ``Associator`` settings. ``"individual"``: seif_gym 0.1's individual-compatibility
 #: association, reproduced bit for bit (the env's ``-v0`` ids; ``joint=False`` also turns off the deferral of
 #: lone loop closures); ``"joint"``: the defaults; ``"revisable"``: the defaults with merges (``loop_merge``) and
-#: tentative landmarks for deferred lone closures (``tentative_closures``): association that is taken back.
-ASSOCIATOR_PRESETS: dict[str, dict] = {
+#: tentative landmarks for deferred lone closures (``tentative_closures``): association that is taken back;
+#: ``"likelihood"``: ``"revisable"`` with the joint hypotheses ranked by their likelihood ratio against new landmarks
+#: (``joint_objective``), a 0.9999 gate, and new landmarks next to a landmark another measurement of the scan took
+#: (``exclusion_margin``: the swapped assignment 100 times less likely).
+ASSOCIATOR_PRESETS: dict[str, dict[str, Any]] = {
     "individual": {"joint": False, "landmark_density": 0.0, "blanket_size": 0, "detection": 0.0},
     "joint": {},
     "revisable": {"loop_merge": True, "tentative_closures": True},
+    "likelihood": {
+        "loop_merge": True,
+        "tentative_closures": True,
+        "joint_objective": "likelihood",
+        "gate": 0.9999,
+        "exclusion_margin": 2.0 * math.log(100.0),
+    },
 }
 
 
@@ -1515,8 +1667,9 @@ def make_associator(preset: str = "joint", **overrides: Any) -> Associator:
     ----------
     preset : str
         A key of :data:`ASSOCIATOR_PRESETS`: ``"joint"`` (the defaults: joint compatibility, the
-        pairing-vs-new-landmark test, deferred lone loop closures) or ``"individual"`` (seif_gym
-        0.1's associator, bit for bit).
+        pairing-vs-new-landmark test, deferred lone loop closures), ``"individual"`` (seif_gym
+        0.1's associator, bit for bit), ``"revisable"`` (merges and tentative closures) or
+        ``"likelihood"`` (revisable, with hypotheses ranked by likelihood).
     **overrides
         Further :class:`Associator` keyword arguments; they take precedence over the preset's.
 

@@ -186,32 +186,37 @@ def test_empty_inputs_and_validation():
 
 
 # -- joint compatibility branch and bound ---------------------------------------------------------------
-def brute_force_jcbb(nu, cov, pair_meas, pair_landmark, gate):
-    """Every joint hypothesis enumerated: the most pairings passing the joint gate, then the smallest d2 + ln det S."""
+def joint_hypotheses(nu, cov, pair_meas, pair_landmark, gate):
+    """Every hypothesis (each landmark at most once) that passes the joint gate: ``(sorted pairs, d2, ln det S)``."""
     import itertools
 
     import scipy.stats
 
     measurements = sorted(set(pair_meas.tolist()))
     options = [[None] + np.flatnonzero(pair_meas == i).tolist() for i in measurements]
-    best = (0, 0.0, [])
     for choice in itertools.product(*options):
-        pairs = [k for k in choice if k is not None]
+        pairs = sorted(k for k in choice if k is not None)
         landmarks = [int(pair_landmark[k]) for k in pairs]
         if len(set(landmarks)) < len(landmarks):
             continue
-        if pairs:
-            idx = np.array([2 * k + a for k in pairs for a in (0, 1)])
-            S = cov[np.ix_(idx, idx)]
-            v = nu[pairs].reshape(-1)
-            d2 = float(v @ np.linalg.solve(S, v))
-            if d2 > scipy.stats.chi2.ppf(gate, 2 * len(pairs)):
-                continue
-            cost = d2 + float(np.linalg.slogdet(S)[1])
-        else:
-            cost = 0.0
+        if not pairs:
+            yield pairs, 0.0, 0.0
+            continue
+        idx = np.array([2 * k + a for k in pairs for a in (0, 1)])
+        S = cov[np.ix_(idx, idx)]
+        v = nu[pairs].reshape(-1)
+        d2 = float(v @ np.linalg.solve(S, v))
+        if d2 <= scipy.stats.chi2.ppf(gate, 2 * len(pairs)):
+            yield pairs, d2, float(np.linalg.slogdet(S)[1])
+
+
+def brute_force_jcbb(nu, cov, pair_meas, pair_landmark, gate):
+    """Every joint hypothesis enumerated: the most pairings passing the joint gate, then the smallest d2 + ln det S."""
+    best = (0, 0.0, [])
+    for pairs, d2, logdet in joint_hypotheses(nu, cov, pair_meas, pair_landmark, gate):
+        cost = d2 + logdet
         if len(pairs) > best[0] or (len(pairs) == best[0] and cost < best[1] - 1e-9):
-            best = (len(pairs), cost, sorted(pairs))
+            best = (len(pairs), cost, pairs)
     return best
 
 
@@ -273,27 +278,11 @@ def test_compiled_jcbb_returns_the_reference_hypothesis(seed):
 
 def brute_force_likelihood_jcbb(nu, cov, pair_meas, pair_landmark, gate, gains):
     """Every joint hypothesis enumerated: the largest ``sum(gains) - (d2 + ln det S) / 2`` passing the joint gate."""
-    import itertools
-
-    import scipy.stats
-
-    measurements = sorted(set(pair_meas.tolist()))
-    options = [[None] + np.flatnonzero(pair_meas == i).tolist() for i in measurements]
     best = (0.0, [])  # the empty hypothesis scores 0
-    for choice in itertools.product(*options):
-        pairs = [k for k in choice if k is not None]
-        landmarks = [int(pair_landmark[k]) for k in pairs]
-        if not pairs or len(set(landmarks)) < len(landmarks):
-            continue
-        idx = np.array([2 * k + a for k in pairs for a in (0, 1)])
-        S = cov[np.ix_(idx, idx)]
-        v = nu[pairs].reshape(-1)
-        d2 = float(v @ np.linalg.solve(S, v))
-        if d2 > scipy.stats.chi2.ppf(gate, 2 * len(pairs)):
-            continue
-        score = float(gains[pairs].sum()) - 0.5 * (d2 + float(np.linalg.slogdet(S)[1]))
-        if score > best[0] + 1e-9:
-            best = (score, sorted(pairs))
+    for pairs, d2, logdet in joint_hypotheses(nu, cov, pair_meas, pair_landmark, gate):
+        score = float(gains[pairs].sum()) - 0.5 * (d2 + logdet)
+        if pairs and score > best[0] + 1e-9:
+            best = (score, pairs)
     return best
 
 

@@ -1312,7 +1312,8 @@ class Associator:
             ids[pair_meas[chosen]] = filt.landmark_ids[pair_landmark[chosen]]
         deferred_to_tentative = 0
         # new landmark: far from every mapped landmark (also those other measurements took: an
-        # unmapped landmark next to a mapped one is ambiguous until the robot can tell them apart)
+        # unmapped landmark next to a mapped one is ambiguous until the robot can tell them apart),
+        # but with exclusion_margin one that another measurement took far more likely does not count
         best = np.full(m, np.inf)
         considered = self._unexcluded(pair_meas, pair_landmark, d2, chosen)
         np.minimum.at(best, pair_meas[considered], d2[considered])
@@ -1357,6 +1358,11 @@ class Associator:
         return ids
 
     def _unexcluded(self, pair_meas: IntArray, pair_landmark: IntArray, d2: FloatArray, chosen: IntArray) -> np.ndarray:
+        """Mask of the pairs that can stop a measurement from starting a new landmark (step 7).
+
+        With ``exclusion_margin``, a pair is left out when another measurement of the scan took its
+        landmark (``chosen``) with a ``d2`` smaller by at least the margin; otherwise every pair counts.
+        """
         considered = np.ones(len(pair_meas), dtype=bool)
         if self.exclusion_margin is None or not len(chosen):
             return considered
@@ -1462,22 +1468,25 @@ class Associator:
         position = {int(k): p for p, k in enumerate(gated.tolist())}
         seed = [position[int(k)] for k in chosen.tolist()]
         local = np.array(seed, dtype=np.int64)
-        log_new = np.empty(0)
-        if self.landmark_density > 0.0:
-            # ln of the density of each gated pair's measurement under "an unmapped landmark"
-            r = ranges[pair_meas[gated]]
-            sigma2 = r * np.exp(0.5 * logdet[gated])  # isotropic Cartesian variance of the projected offset
-            inside = scipy.stats.ncx2.cdf(self.landmark_separation**2 / sigma2, 2, euclid2[gated] / sigma2)
-            unseen = (1.0 - self.detection) ** self._coverage.counts(self._last_points[pair_meas[gated]])
-            log_new = np.log(self.landmark_density * r * np.maximum((1.0 - inside) * unseen, 1e-300))
+
+        def log_new_landmark(pairs: IntArray) -> FloatArray:
+            """The log density of each pair's measurement under "an unmapped landmark" (step 5)."""
+            r = ranges[pair_meas[pairs]]
+            sigma2 = r * np.exp(0.5 * logdet[pairs])  # isotropic Cartesian variance of the projected offset
+            inside = scipy.stats.ncx2.cdf(self.landmark_separation**2 / sigma2, 2, euclid2[pairs] / sigma2)
+            unseen = (1.0 - self.detection) ** self._coverage.counts(self._last_points[pair_meas[pairs]])
+            return np.log(self.landmark_density * r * np.maximum((1.0 - inside) * unseen, 1e-300))
+
+        by_likelihood = self.joint_objective == "likelihood" and self.landmark_density > 0.0
+        log_new_gated = log_new_landmark(gated) if by_likelihood else None
         if self.joint and len(np.unique(pair_meas[gated])) > 1:
-            gains = None  # rank the hypotheses by their number of pairings
-            if self.joint_objective == "likelihood" and len(log_new):
-                gains = -math.log(2.0 * math.pi) - log_new  # by the likelihood ratio against new landmarks
+            gains, noise_logdet = None, -math.inf  # rank the hypotheses by their number of pairings
+            if log_new_gated is not None:  # or by their likelihood ratio against new landmarks
+                gains, noise_logdet = -math.log(2.0 * math.pi) - log_new_gated, float(np.linalg.slogdet(noise)[1])
             local = jcbb(nu, cov, pair_meas[gated], pair_landmark[gated], self.joint_gate, self.max_nodes,
-                         initial=seed, gains=gains, noise_logdet=float(np.linalg.slogdet(noise)[1]))  # fmt: skip
+                         initial=seed, gains=gains, noise_logdet=noise_logdet)  # fmt: skip
         if self.landmark_density > 0.0:
-            log_new = log_new[local]
+            log_new = log_new_landmark(gated[local]) if log_new_gated is None else log_new_gated[local]
             keep = np.ones(len(local), dtype=bool)
             while keep.any():
                 margin = conditional_loglik(nu, cov, local[keep]) - log_new[keep]

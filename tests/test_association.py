@@ -332,6 +332,11 @@ def test_likelihood_jcbb_prefers_one_good_pairing_to_two_poor_ones():
     assert jcbb(nu, cov, pair_meas, pair_landmark, gate=0.999, gains=gains, noise_logdet=0.0).tolist() == [1, 2]
     with pytest.raises(ValueError, match="gains"):
         jcbb(nu, cov, pair_meas, pair_landmark, gains=np.zeros(2))
+    with pytest.raises(ValueError, match="gains"):
+        jcbb(nu, cov, pair_meas, pair_landmark, gains=np.array([5.0, np.nan, 3.0]))
+    for bad in (float("nan"), float("inf"), "0"):
+        with pytest.raises(ValueError, match="noise_logdet"):
+            jcbb(nu, cov, pair_meas, pair_landmark, gains=np.ones(3), noise_logdet=bad)
 
 
 def test_conditional_loglik_is_the_chain_rule():

@@ -694,6 +694,10 @@ def jcbb(
         gains = np.ascontiguousarray(gains, dtype=np.float64)
         if gains.shape != pair_meas.shape:
             raise ValueError(f"gains must have one entry per pair, shape {pair_meas.shape}, got {gains.shape}")
+        if not np.isfinite(gains).all():
+            raise ValueError("gains must be finite")
+        if not isinstance(noise_logdet, (int, float)) or math.isnan(noise_logdet) or noise_logdet == math.inf:
+            raise ValueError(f"noise_logdet must be a real number or -inf, got {noise_logdet!r}")
     if not compiled:
         search = _JointSearch(nu, cov, pair_meas, pair_landmark, gate, max_nodes, gains, noise_logdet)
         return np.array(sorted(search.run(initial)), dtype=np.int64)

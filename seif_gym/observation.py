@@ -129,7 +129,11 @@ def _belief_map(
     landmarks: FloatArray,
     confidence: FloatArray,
 ) -> UInt8Array:
-    """The (3, size, size) uint8 egocentric raster (0..255); row 0 is ahead, column 0 is left."""
+    """The (3, size, size) uint8 egocentric raster (0..255); row 0 is ahead, column 0 is left.
+
+    The readable reference: the encoders call :func:`_fill_belief_map`, which computes the same
+    bits with the per-row and per-column products hoisted (``tests/test_world.py`` compares them).
+    """
     out = np.zeros((3, size, size), dtype=np.uint8)
     cells = coverage.shape[0]
     c, s = np.cos(theta), np.sin(theta)
@@ -158,6 +162,72 @@ def _belief_map(
             if value > out[1, i, j]:
                 out[1, i, j] = value
     return out
+
+
+@njit(cache=True)
+def _fill_belief_map(
+    out: UInt8Array,
+    coverage: UInt8Array,
+    resolution: float,
+    half_arena: float,
+    x: float,
+    y: float,
+    theta: float,
+    size: int,
+    extent: float,
+    landmarks: FloatArray,
+    confidence: FloatArray,
+) -> None:
+    """:func:`_belief_map` written into ``out`` (3, size, size), the same bits at about half the cost.
+
+    A cell's world point ``(x + c f − s l, y + s f + c l)`` is evaluated as ``(x + c f) − (s l)`` and
+    ``(y + s f) + (c l)``, the order of :func:`_belief_map`'s expression, with the row terms computed
+    once per row and the column terms once per column; each row first computes every cell's grid
+    indices in a loop without branches (which the compiler vectorises), then reads the coverage.
+    """
+    cells = coverage.shape[0]
+    last = cells - 1
+    c, s = np.cos(theta), np.sin(theta)
+    step = 2.0 * extent / size
+    s_left = np.empty(size)
+    c_left = np.empty(size)
+    for j in range(size):
+        left = extent - (j + 0.5) * step
+        s_left[j] = s * left
+        c_left[j] = c * left
+    grid_i = np.empty(size, dtype=np.int64)
+    grid_j = np.empty(size, dtype=np.int64)
+    inside = np.empty(size, dtype=np.bool_)
+    for i in range(size):
+        forward = extent - (i + 0.5) * step
+        row_x = x + c * forward
+        row_y = y + s * forward
+        for j in range(size):
+            wx = row_x - s_left[j]
+            wy = row_y + c_left[j]
+            inside[j] = (wx >= -half_arena) & (wx <= half_arena) & (wy >= -half_arena) & (wy <= half_arena)
+            # clamped below too: the index of a cell outside the arena is computed, never read
+            grid_i[j] = min(max(int((wx + half_arena) / resolution), 0), last)
+            grid_j[j] = min(max(int((wy + half_arena) / resolution), 0), last)
+        for j in range(size):
+            out[1, i, j] = 0
+            if inside[j]:
+                out[0, i, j] = 255 * coverage[grid_i[j], grid_j[j]]
+                out[2, i, j] = 0
+            else:
+                out[0, i, j] = 0
+                out[2, i, j] = 255
+    for k in range(landmarks.shape[0]):
+        dx = landmarks[k, 0] - x
+        dy = landmarks[k, 1] - y
+        forward = c * dx + s * dy
+        left = -s * dx + c * dy
+        i = int((extent - forward) / step)
+        j = int((extent - left) / step)
+        if 0 <= i < size and 0 <= j < size and forward <= extent and left <= extent:
+            value = np.uint8(min(max(round(255.0 * confidence[k]), 1.0), 255.0))
+            if value > out[1, i, j]:
+                out[1, i, j] = value
 
 
 @njit(cache=True)
@@ -297,8 +367,9 @@ class BeliefEncoder:
             self.arena_size * math.sqrt(2.0), scale, CHI2_2DOF_95,
         )  # fmt: skip
         confidence = 1.0 / (1.0 + filt.landmark_std() / scale)
-        belief_map = _belief_map(
-            self.coverage, config.coverage_resolution, self.half_arena,
+        belief_map = np.empty((len(MAP_CHANNELS), config.map_size, config.map_size), dtype=np.uint8)
+        _fill_belief_map(
+            belief_map, self.coverage, config.coverage_resolution, self.half_arena,
             x, y, theta, config.map_size, config.map_extent, landmarks, confidence,
         )  # fmt: skip
         return {"pose": pose_obs, "landmarks": landmark_obs, "landmarks_mask": mask, "belief_map": belief_map}
@@ -587,8 +658,8 @@ def encode_env(e: int, coverage: UInt8Array, resolution: float, half_arena: floa
     confidence = np.empty(n)
     for i in range(n):
         confidence[i] = 1.0 / (1.0 + std[i] / std_scale)
-    map_out[e] = _belief_map(coverage[e], resolution, half_arena, x, y, theta, map_size, map_extent, landmarks,
-                             confidence)  # fmt: skip
+    _fill_belief_map(map_out[e], coverage[e], resolution, half_arena, x, y, theta, map_size, map_extent, landmarks,
+                     confidence)  # fmt: skip
 
 
 @njit(cache=True)

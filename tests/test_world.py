@@ -277,6 +277,34 @@ def test_belief_map_landmark_channel_is_255_times_the_confidence(std_scale):
         assert np.all(expected == 1)  # tiny confidences still mark the cell
 
 
+@pytest.mark.parametrize("resolution, size, extent", [(0.5, 40, 8.0), (0.3, 16, 8.0), (0.7, 37, 5.5)])
+def test_fast_belief_map_equals_the_reference_bit_for_bit(resolution, size, extent):
+    """The encoders' ``_fill_belief_map`` equals the readable ``_belief_map``: every channel of every cell.
+
+    Poses inside, on the edge of and outside the arena, any heading (also beyond [-pi, pi)), landmarks
+    in and out of the raster, a random coverage grid.
+    """
+    from seif_gym.observation import _belief_map, _fill_belief_map
+
+    rng = np.random.default_rng(3)
+    half_arena = 10.0
+    cells = math.ceil(2 * half_arena / resolution)
+    out = np.full((3, size, size), 7, dtype=np.uint8)  # stale values: every cell must be written
+    outside = swept = 0
+    for trial in range(300):
+        coverage = (rng.random((cells, cells)) < rng.random()).astype(np.uint8)
+        x, y = rng.uniform(-13.0, 13.0, 2) if trial % 3 else rng.choice([-10.0, 10.0, 0.0], 2)
+        theta = rng.uniform(-8.0, 8.0) if trial % 5 else rng.choice([0.0, math.pi / 2, -math.pi])
+        landmarks = rng.uniform(-12.0, 12.0, (rng.integers(0, 40), 2))
+        confidence = rng.random(landmarks.shape[0])
+        expected = _belief_map(coverage, resolution, half_arena, x, y, theta, size, extent, landmarks, confidence)
+        _fill_belief_map(out, coverage, resolution, half_arena, x, y, theta, size, extent, landmarks, confidence)
+        np.testing.assert_array_equal(out, expected, err_msg=f"trial {trial}")
+        outside += bool(np.any(expected[2] == 255))
+        swept += bool(np.any(expected[0] == 255))
+    assert outside > 50 and swept > 50  # both branches of a cell were compared many times
+
+
 def test_batched_world_equals_worlds_bit_for_bit():
     from seif_gym.world import BatchedWorld
 

@@ -240,6 +240,15 @@ def _displacement(theta: float, v: float, w: float, dt: float) -> tuple[float, f
 
 
 @njit(cache=True)
+def _any_at_least(values: NDArray[np.int64], bound: int) -> bool:
+    """Whether some entry of ``values`` is ``>= bound`` (one call where numpy takes several)."""
+    for value in values:
+        if value >= bound:
+            return True
+    return False
+
+
+@njit(cache=True)
 def _step_worlds(
     poses: FloatArray,
     controls: FloatArray,
@@ -316,6 +325,8 @@ class _NormalStream:
     def reserve(self, need: int) -> None:
         """Make sure every world has ``need`` unread normals."""
         size = self.values.shape[1]
+        if not _any_at_least(self.cursor, size - need + 1):
+            return  # the common case, checked in one compiled call
         for e in np.flatnonzero(self.cursor + need > size).tolist():
             rng = self.generators[e]
             if rng is None:

@@ -58,6 +58,16 @@ __all__ = ["SeifExploreVectorEnv"]
 
 
 @njit(cache=True)
+def _all_finite(values: FloatArray) -> bool:
+    """Whether every entry of the 2-D ``values`` is finite (one compiled pass, no temporary arrays)."""
+    for i in range(values.shape[0]):
+        for j in range(values.shape[1]):
+            if not np.isfinite(values[i, j]):
+                return False
+    return True
+
+
+@njit(cache=True)
 def _score_env(e: int, true_poses: FloatArray, truth: FloatArray, mean: FloatArray, counters: IntArray, ids: IntArray,
                robot_info: FloatArray, robot_links: FloatArray, landmark_info: FloatArray, neighbour_index: IntArray,
                neighbour_info: FloatArray, neighbour_count: IntArray, information_vector: FloatArray,
@@ -257,6 +267,10 @@ class SeifExploreVectorEnv(VectorEnv):
         self._elapsed = np.zeros(n, dtype=np.int64)
         self._autoreset = np.zeros(n, dtype=bool)
         self._scale = template._action_scale
+        #: whether a map can outgrow the compiled dense pose marginal (then the sparse one runs for it)
+        self._large_maps = template.world_config.num_landmarks > DENSE_MARGINALS_UP_TO
+        self._env_rows = np.arange(n)[:, None]
+        self._landmarks_total = np.full(n, template.world_config.num_landmarks, dtype=np.int64)
         self._info_template: dict[str, Any] | None = None
 
     # -- episodes ---------------------------------------------------------------------------------
@@ -314,7 +328,7 @@ class SeifExploreVectorEnv(VectorEnv):
         actions = np.asarray(actions, dtype=np.float64)
         if actions.shape != (self.num_envs, 2):
             raise ValueError(f"actions must have shape {(self.num_envs, 2)}, got {actions.shape}")
-        if not np.all(np.isfinite(actions)):
+        if not _all_finite(actions):
             raise ValueError(
                 f"actions must be finite, got non-finite rows {np.flatnonzero(~np.isfinite(actions).all(1)).tolist()}"
             )
@@ -323,7 +337,7 @@ class SeifExploreVectorEnv(VectorEnv):
         if self.render_mode is not None and not self._autoreset[0]:
             template.step(actions[0])  # the drawn copy of sub-env 0 (its own generators: the same draws)
         dt = template.robot_config.dt
-        controls = np.clip(actions, -1.0, 1.0) * self._scale
+        controls = np.minimum(np.maximum(actions, -1.0), 1.0) * self._scale  # np.clip's values, without its wrapper
         world, filters = self._world, self._filters
         executed, wall = world.step(controls, dt)
         ranges, bearings, ids, counts = world.measure()
@@ -331,13 +345,12 @@ class SeifExploreVectorEnv(VectorEnv):
         config, sensor, reward_config = template.observation_config, template.sensor, template.reward_config
         half_fov = 0.5 * sensor.fov if sensor.fov < 2.0 * math.pi else math.pi
         diagonal = template.world_config.arena_size * math.sqrt(2.0)
-        rewards, map_error, pose_error = np.zeros(n), np.zeros(n), np.zeros(n)
+        rewards, map_error, pose_error, pose_nees, pose_nees_blanket = np.zeros((5, n))
         diverged = np.zeros(n, dtype=bool)
-        pose_nees, pose_nees_blanket = np.zeros(n), np.zeros(n)
         # one thread: a plain loop per kernel, which never starts numba's thread pool (seif_gym.threads says
         # why that matters); more: one prange loop over the envs for the filters, observations and scores
         if self.num_threads == 1:
-            filters.predict(executed, dt)
+            filters.predict_trusted(executed, dt)  # the worlds' own executed controls: valid
             filters.update_trusted(ranges, bearings, ids, counts)  # the worlds' own measurements: valid
             encode_many(self._coverage, config.coverage_resolution, template.encoder.half_arena, sensor.max_range,
                         half_fov, config.map_size, config.map_extent, config.nearest_landmarks, diagonal,
@@ -362,7 +375,9 @@ class SeifExploreVectorEnv(VectorEnv):
                     reward_config.wall_penalty, reward_config.divergence_threshold, DENSE_MARGINALS_UP_TO, rewards,
                     map_error, pose_error, diverged, pose_nees, pose_nees_blanket,
                 )  # fmt: skip
-        for e in np.flatnonzero(filters.counters[:, 0] > DENSE_MARGINALS_UP_TO).tolist():
+        large = (np.flatnonzero(filters.counters[:, 0] > DENSE_MARGINALS_UP_TO).tolist() if self._large_maps
+                 else ())  # fmt: skip
+        for e in large:
             # large maps: the single env's sparse LU on this env's arrays (exactly what it computes)
             error = world.poses[e] - filters.mean[e, :3]
             error[2] = wrap_angle(float(error[2]))
@@ -377,7 +392,7 @@ class SeifExploreVectorEnv(VectorEnv):
         observations = self._copy_observations()
         if self.autoreset_mode == AutoresetMode.NEXT_STEP:
             # a sub-env whose previous step ended its episode starts a new one instead of stepping
-            for e in np.flatnonzero(self._autoreset).tolist():
+            for e in np.flatnonzero(self._autoreset).tolist() if self._autoreset.any() else ():
                 observation, info = self.envs[e].reset()
                 self._load(e)
                 for key, value in observation.items():
@@ -387,7 +402,8 @@ class SeifExploreVectorEnv(VectorEnv):
                 infos = self._replace_info(infos, info, e)
             self._autoreset = terminated | truncated
         else:
-            for e in np.flatnonzero(terminated | truncated).tolist():
+            ended = terminated | truncated
+            for e in np.flatnonzero(ended).tolist() if ended.any() else ():
                 # as SyncVectorEnv: the ending step's observation and info go under final_obs / final_info
                 final = {key: value[e].copy() for key, value in observations.items()}
                 infos = self._add_info(infos, {"final_obs": final, "final_info": self._info_of(infos, e)}, e)
@@ -405,11 +421,10 @@ class SeifExploreVectorEnv(VectorEnv):
         """The batched infos of a step: the single env's keys, each with its ``_key`` mask."""
         n = self.num_envs
         filters, world = self._filters, self._world
-        total = self.envs[0].world_config.num_landmarks
         active = np.empty(n, dtype=object)
         measurements = np.empty(n, dtype=object)
         # one gather and one copy for all envs, then per env a tuple and views of the copies
-        active_ids = np.take_along_axis(filters.ids, filters.active, axis=1).tolist()
+        active_ids = filters.ids[self._env_rows, filters.active].tolist()
         active_counts = filters.counters[:, 1].tolist()
         ranges, bearings, ids = ranges.copy(), bearings.copy(), ids.copy()
         for e, m in enumerate(counts.tolist()):
@@ -427,7 +442,7 @@ class SeifExploreVectorEnv(VectorEnv):
             "pose_nees": pose_nees,
             "pose_nees_blanket": pose_nees_blanket,
             "landmarks_mapped": filters.counters[:, 0].copy(),
-            "landmarks_total": np.full(n, total, dtype=np.int64),
+            "landmarks_total": self._landmarks_total.copy(),
             "active_landmarks": active,
             "control": controls.copy(),
             "executed_control": executed.copy(),
@@ -438,10 +453,10 @@ class SeifExploreVectorEnv(VectorEnv):
             "association_errors": np.zeros(n, dtype=np.int64),
         }
         infos: dict[str, Any] = {}
-        mask = np.ones(n, dtype=bool)
-        for key, value in values.items():
+        masks = np.ones((len(values), n), dtype=bool)  # one allocation; each key's mask is its own row
+        for (key, value), mask in zip(values.items(), masks):
             infos[key] = value
-            infos[f"_{key}"] = mask.copy()
+            infos["_" + key] = mask
         return infos
 
     @staticmethod

@@ -236,8 +236,15 @@ class BatchedSEIF:
         self._check_started()
         controls = as_finite_array(controls, "controls", (self.num_filters, 2))
         dt = as_positive_scalar(dt, "dt")
+        self.predict_trusted(np.ascontiguousarray(controls), dt)
+
+    def predict_trusted(self, controls: FloatArray, dt: float) -> None:
+        """:meth:`predict` without its checks, for controls it would accept (the native vector env's own).
+
+        ``controls`` C-contiguous float64 of shape (N, 2), finite; ``dt`` a positive float.
+        """
         _kernels.seif_predict_many(*self.kernel_arrays(), self.active, np.ascontiguousarray(self.counters[:, _ACTIVE]),
-                                   np.ascontiguousarray(controls), dt, self._alphas, self._floor)  # fmt: skip
+                                   controls, dt, self._alphas, self._floor)  # fmt: skip
 
     def update(self, ranges: ArrayLike, bearings: ArrayLike, ids: ArrayLike, counts: ArrayLike) -> None:
         """Measurement update of every filter with its first ``counts[e]`` measurements (known ids).

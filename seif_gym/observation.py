@@ -117,6 +117,23 @@ def _sweep(
 
 
 @njit(cache=True)
+def _mark_landmarks(out: UInt8Array, x: float, y: float, c: float, s: float, step: float, extent: float, size: int,
+                    landmarks: FloatArray, confidence: FloatArray) -> None:  # fmt: skip
+    """Channel 1 of the raster: each landmark's cell gets ``round(255 confidence)`` (at least 1; the largest wins)."""
+    for k in range(landmarks.shape[0]):
+        dx = landmarks[k, 0] - x
+        dy = landmarks[k, 1] - y
+        forward = c * dx + s * dy
+        left = -s * dx + c * dy
+        i = int((extent - forward) / step)
+        j = int((extent - left) / step)
+        if 0 <= i < size and 0 <= j < size and forward <= extent and left <= extent:
+            value = np.uint8(min(max(round(255.0 * confidence[k]), 1.0), 255.0))
+            if value > out[1, i, j]:
+                out[1, i, j] = value
+
+
+@njit(cache=True)
 def _belief_map(
     coverage: UInt8Array,
     resolution: float,
@@ -150,34 +167,13 @@ def _belief_map(
             gi = min(int((wx + half_arena) / resolution), cells - 1)
             gj = min(int((wy + half_arena) / resolution), cells - 1)
             out[0, i, j] = 255 * coverage[gi, gj]
-    for k in range(landmarks.shape[0]):
-        dx = landmarks[k, 0] - x
-        dy = landmarks[k, 1] - y
-        forward = c * dx + s * dy
-        left = -s * dx + c * dy
-        i = int((extent - forward) / step)
-        j = int((extent - left) / step)
-        if 0 <= i < size and 0 <= j < size and forward <= extent and left <= extent:
-            value = np.uint8(min(max(round(255.0 * confidence[k]), 1.0), 255.0))
-            if value > out[1, i, j]:
-                out[1, i, j] = value
+    _mark_landmarks(out, x, y, c, s, step, extent, size, landmarks, confidence)
     return out
 
 
 @njit(cache=True)
-def _fill_belief_map(
-    out: UInt8Array,
-    coverage: UInt8Array,
-    resolution: float,
-    half_arena: float,
-    x: float,
-    y: float,
-    theta: float,
-    size: int,
-    extent: float,
-    landmarks: FloatArray,
-    confidence: FloatArray,
-) -> None:
+def _fill_belief_map(out: UInt8Array, coverage: UInt8Array, resolution: float, half_arena: float, x: float, y: float,
+                     theta: float, size: int, extent: float, landmarks: FloatArray, confidence: FloatArray) -> None:  # fmt: skip
     """:func:`_belief_map` written into ``out`` (3, size, size), the same bits at about half the cost.
 
     A cell's world point ``(x + c f − s l, y + s f + c l)`` is evaluated as ``(x + c f) − (s l)`` and
@@ -217,17 +213,7 @@ def _fill_belief_map(
             else:
                 out[0, i, j] = 0
                 out[2, i, j] = 255
-    for k in range(landmarks.shape[0]):
-        dx = landmarks[k, 0] - x
-        dy = landmarks[k, 1] - y
-        forward = c * dx + s * dy
-        left = -s * dx + c * dy
-        i = int((extent - forward) / step)
-        j = int((extent - left) / step)
-        if 0 <= i < size and 0 <= j < size and forward <= extent and left <= extent:
-            value = np.uint8(min(max(round(255.0 * confidence[k]), 1.0), 255.0))
-            if value > out[1, i, j]:
-                out[1, i, j] = value
+    _mark_landmarks(out, x, y, c, s, step, extent, size, landmarks, confidence)
 
 
 @njit(cache=True)

@@ -258,3 +258,25 @@ def test_large_maps_take_the_sparse_pose_marginal_like_the_single_env(monkeypatc
         _assert_equal(got[4], expected[4], f"step {t} info")
         sparse_steps += int((got[4]["landmarks_mapped"] > 1).sum())
     assert sparse_steps > 10  # the sparse path was taken
+
+
+def test_bench_vector_stages_split_the_native_step():
+    """``benchmarks/bench_vector.py --stages``: every compiled call of the step is timed, and only once."""
+    import importlib.util
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parents[1] / "benchmarks" / "bench_vector.py"
+    spec = importlib.util.spec_from_file_location("bench_vector", path)
+    assert spec is not None and spec.loader is not None
+    bench = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(bench)
+    stages = bench.stage_times("SeifExplore-v2", 2, {}, 0.3)
+    compiled = [name for name in stages if not name.startswith("Python")]
+    assert len(compiled) == 6 and all(stages[name] > 0.0 for name in compiled)
+    assert stages["Python around them (infos, checks, autoresets)"] > 0.0
+    # the module's kernels are restored: a new env steps with the originals
+    from seif_gym.envs import vector
+
+    assert vector.encode_many.__module__ == "seif_gym.observation" and hasattr(vector._score_many, "py_func")
+    with pytest.raises(SystemExit, match="compiled native env"):
+        bench.stage_times("SeifExplore-v2", 2, {"filter": "ekf"}, 0.1)

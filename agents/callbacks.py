@@ -39,6 +39,7 @@ import numpy as np
 from stable_baselines3.common.callbacks import BaseCallback
 
 from agents.checkpoints import save_with_vecnormalize
+from agents.time_feature import TimeLeftClock, episode_limit, uses_time_left
 
 __all__ = ["EVAL_COLUMNS", "MapErrorEvalCallback", "TaskMetricsCallback", "run_folder"]
 
@@ -158,14 +159,22 @@ class _NormalizedPolicy:
     run and scored exactly as evaluation episodes are.
     """
 
-    def __init__(self, model: Any, deterministic: bool) -> None:
+    def __init__(self, model: Any, deterministic: bool, env: gym.Env) -> None:
         self.model = model
         self.deterministic = deterministic
         self.vec_normalize = model.get_vec_normalize_env()
+        # a policy trained with the budget's clock (agents.time_feature) counts its own steps on the plain env
+        self.clock = TimeLeftClock(episode_limit(env)) if uses_time_left(model.observation_space) else None
+
+    def reset(self) -> None:
+        if self.clock is not None:
+            self.clock.reset()
 
     def predict(
         self, observation: Any, state: Any = None, episode_start: Any = None, deterministic: bool = True
     ) -> tuple[np.ndarray, Any]:
+        if self.clock is not None:
+            observation = self.clock.observe(observation, episode_start)
         if self.vec_normalize is not None:
             # the training statistics as they are now (normalize_obs neither updates nor needs a batch)
             observation = self.vec_normalize.normalize_obs(observation)
@@ -310,7 +319,7 @@ class MapErrorEvalCallback(BaseCallback):
             if self.env_id is None:
                 raise ValueError("MapErrorEvalCallback: env_id is not known before training starts")
             self._env = gym.make(self.env_id, **(self.env_kwargs or {}))
-        policy = _NormalizedPolicy(self.model, self.deterministic)
+        policy = _NormalizedPolicy(self.model, self.deterministic, self._env)
         # run_episode asks only for predict (and reset, if there is one) of its agent
         rows = [run_episode(policy, self._env, seed)[0] for seed in self.seeds]  # type: ignore[arg-type]
         errors = np.array([row["final_map_error"] for row in rows])

@@ -113,6 +113,7 @@ from agents.baselines import BASELINES, Agent, baseline_class, make_agent
 from agents.parallel import Executor, chunks
 from agents.parallel import add_arguments as add_executor_arguments
 from agents.parallel import from_arguments as executor_from_arguments
+from agents.time_feature import TimeLeftClock, TimeLeftObservation, episode_limit, uses_time_left
 from seif_gym.progress import Progress
 
 if TYPE_CHECKING:
@@ -269,12 +270,18 @@ class SB3Agent(Agent):
         self.vecnormalize = None
         from agents.checkpoints import vecnormalize_path
 
+        factory: Callable[[], Any] = env_factory if env_factory is not None else (lambda: env)
+        # a policy trained with the budget's clock in its observation counts its own steps
+        self.clock: TimeLeftClock | None = None
+        if uses_time_left(self.model.observation_space):
+            self.clock = TimeLeftClock(episode_limit(env if env is not None else factory()))
+            plain_factory = factory
+            factory = lambda: TimeLeftObservation(plain_factory())  # noqa: E731  (the spaces VecNormalize checks)
         # the statistics saved with this very model (a checkpoint's own, never a later moment's)
         stats_path = vecnormalize_path(self.path)
         if stats_path is not None:
             from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
 
-            factory: Callable[[], Any] = env_factory if env_factory is not None else (lambda: env)
             self.vecnormalize = VecNormalize.load(str(stats_path), DummyVecEnv([factory]))
             self.vecnormalize.training = False
             self.vecnormalize.norm_reward = False
@@ -286,8 +293,8 @@ class SB3Agent(Agent):
         episode_start: Any = None,
         deterministic: bool = False,
     ) -> tuple[np.ndarray, Any]:
-        """The model's ``predict`` after the saved observation normalisation (if any)."""
-        model_input: Any = dict(observation)
+        """The model's ``predict`` after the budget's clock and the saved observation normalisation (if any)."""
+        model_input: Any = dict(observation) if self.clock is None else self.clock.observe(observation, episode_start)
         if self.vecnormalize is not None:
             model_input = self.vecnormalize.normalize_obs(model_input)
         action, state = self.model.predict(
@@ -298,6 +305,12 @@ class SB3Agent(Agent):
     def _act(self, observation: Mapping[str, np.ndarray], index: int) -> np.ndarray:
         """One unbatched observation (the model is stateless across envs)."""
         return self.predict(observation, deterministic=True)[0]
+
+    def reset(self, index: int | None = None) -> None:
+        """Env ``index`` (every env when ``None``) starts a new episode; the budget's clock restarts with it."""
+        super().reset(index)
+        if self.clock is not None:
+            self.clock.reset(index)
 
     def __repr__(self) -> str:
         return f"SB3Agent({str(self.path)!r}, vecnormalize={self.vecnormalize is not None})"

@@ -50,6 +50,7 @@ import seif_gym
 from agents import BASELINES
 from agents.evaluate import evaluate_agents, write_outputs
 from agents.parallel import Executor
+from agents.time_feature import TimeLeftObservation, uses_time_left
 
 __all__ = [
     "HELD_OUT_SEED",
@@ -154,7 +155,11 @@ def policy_fits(policy: ShippedPolicy, env_id: str) -> bool:
     model = PPO.load(policy.path, device="cpu")
     env = gym.make(env_id)
     try:
-        return model.observation_space == env.observation_space and model.action_space == env.action_space
+        # a policy with the budget's clock adds that entry itself (agents.time_feature)
+        space = env.observation_space
+        if uses_time_left(model.observation_space) and isinstance(space, gym.spaces.Dict):
+            space = TimeLeftObservation(env).observation_space
+        return model.observation_space == space and model.action_space == env.action_space
     finally:
         env.close()
 

@@ -133,3 +133,16 @@ def test_a_policy_with_the_clock_runs_on_the_plain_env(tmp_path):
         np.testing.assert_array_equal(action, expected)
         observation, *_ = training_env.step(action)
         plain_observation, *_ = env.step(action)
+
+
+def test_the_benchmark_takes_a_policy_with_the_clock(tmp_path):
+    from stable_baselines3 import PPO
+
+    from agents.benchmark import ShippedPolicy, policy_fits
+
+    env = TimeLeftObservation(gym.make("SeifExploreBudget-v2"))
+    path = tmp_path / "model.zip"
+    PPO(BeliefPolicy, env, n_steps=8, batch_size=8, seed=0, device="cpu").save(path)
+    assert policy_fits(ShippedPolicy(path, "SeifExploreBudget-v2", "here"), "SeifExploreBudget-v2")
+    # the plain policy of the same task does not take the wrapped observation
+    assert not policy_fits(ShippedPolicy(path, "SeifExploreBudget-v2", "here"), "CartPole-v1")

@@ -467,6 +467,7 @@ def final_map_errors(agent, seeds, env_id: str = "SeifExplore-v0") -> list[float
     errors = []
     for seed in seeds:
         observation, info = env.reset(seed=seed)
+        agent.reset()  # a new episode (a policy with the budget's clock restarts it)
         done = False
         while not done:
             action, _ = agent.predict(observation, deterministic=True)

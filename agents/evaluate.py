@@ -274,7 +274,15 @@ class SB3Agent(Agent):
         # a policy trained with the budget's clock in its observation counts its own steps
         self.clock: TimeLeftClock | None = None
         if uses_time_left(self.model.observation_space):
-            self.clock = TimeLeftClock(episode_limit(env if env is not None else factory()))
+            if env is not None:
+                self.clock = TimeLeftClock(episode_limit(env))
+            else:
+                probe = factory()
+                try:
+                    self.clock = TimeLeftClock(episode_limit(probe))
+                finally:
+                    if probe is not None:
+                        probe.close()
             plain_factory = factory
             factory = lambda: TimeLeftObservation(plain_factory())  # noqa: E731  (the spaces VecNormalize checks)
         # the statistics saved with this very model (a checkpoint's own, never a later moment's)

@@ -148,16 +148,19 @@ class TimeLeftClock:
         """``observation`` with :data:`TIME_LEFT` added (single or batched), then one more step counted."""
         if TIME_LEFT in observation:
             return dict(observation)
+        # the env's pose entry is 1-D: a leading axis is the batch's
         pose = np.asarray(observation["pose"])
         batched = pose.ndim == 2
         n_envs = pose.shape[0] if batched else 1
-        if self._steps.shape[0] != n_envs:
-            self._steps = np.zeros(n_envs, dtype=np.int64)
+        starts = None
         if episode_start is not None:
             starts = np.asarray(episode_start, dtype=bool).reshape(-1)
             if starts.shape[0] != n_envs:
                 raise ValueError(f"episode_start must have {n_envs} entries, got shape {np.shape(episode_start)}")
-            self._steps[starts] = 0
-        left = _time_left(self._steps, self.limit)
-        self._steps += 1
+        # checked before anything changes: a refused call leaves the counts as they were
+        steps = self._steps if self._steps.shape[0] == n_envs else np.zeros(n_envs, dtype=np.int64)
+        if starts is not None:
+            steps[starts] = 0
+        left = _time_left(steps, self.limit)
+        self._steps = steps + 1
         return {**observation, TIME_LEFT: left if batched else left[0]}

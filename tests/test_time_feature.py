@@ -93,8 +93,12 @@ def test_bad_input_is_refused_clearly():
         with pytest.raises(ValueError, match="limit"):
             TimeLeftClock(limit)  # type: ignore[arg-type]
     clock = TimeLeftClock(3)
+    single = {"pose": np.zeros(7, dtype=np.float32)}
+    clock.observe(single, np.array([True]))
     with pytest.raises(ValueError, match="episode_start"):
         clock.observe({"pose": np.zeros((2, 7), dtype=np.float32)}, np.array([True, False, True]))
+    # the refused call changed nothing: the single env's count goes on
+    assert clock.observe(single)[TIME_LEFT][0] == pytest.approx(2 / 3)
 
 
 def test_a_policy_with_the_clock_runs_on_the_plain_env(tmp_path):

@@ -2,15 +2,15 @@
 
 Usage::
 
-    python -m agents.showcase [--episodes 100] [--seed 1000000] [--env SeifExplore-v1] [--out showcase]
+    python -m agents.showcase [--episodes 100] [--seed 1000000] [--env SeifExplore-v2] [--out showcase]
         [--bootstrap N] [--quiet]
 
 Runs :func:`agents.evaluate.evaluate_agents` for ``random``, ``frontier``,
 ``revisit``, ``info_gain`` and the shipped PPO policy
 (:data:`SHIPPED_POLICY`, trained on ``SeifExplore-v0``) on the same held-out
-seeds of ``--env`` (default ``SeifExplore-v1``, where the README's table was
-measured; ``-v2``, seif_gym 0.3's sensor blind zone, is newer; training never
-resets with these seeds), prints the table (means with 95% confidence
+seeds of ``--env`` (default ``SeifExplore-v2``, the newest version, where the
+README's table was measured; its tables on ``-v1`` and ``-v0`` are the same
+command with ``--env``; training never resets with these seeds), prints the table (means with 95% confidence
 intervals) and the paired comparison with the best baseline (the mean
 per-seed difference of the final map error with its 95% Student-t interval,
 :func:`agents.evaluate.paired_comparison`; the policy *beats* the best
@@ -36,9 +36,8 @@ from agents.evaluate import SB3Agent, evaluate_agents, markdown_table, paired_ta
 from seif_gym.progress import Progress
 
 SHIPPED_POLICY = Path(__file__).parent / "policies" / "ppo_seif_explore.zip"
-#: The env the main job evaluates on (the shipped policy was trained on ``SeifExplore-v0``; the README's
-#: table was measured on -v1, which -v2 has not yet replaced here).
-ENV_ID = "SeifExplore-v1"
+#: The env the main job evaluates on: the newest version (the shipped policy was trained on ``SeifExplore-v0``).
+ENV_ID = "SeifExplore-v2"
 #: First held-out seed: far from the seeds training and its evaluation callback draw.
 HELD_OUT_SEED = 1_000_000
 

@@ -6,18 +6,18 @@ Usage::
         [--bootstrap N] [--quiet]
 
 Runs :func:`agents.evaluate.evaluate_agents` for ``random``, ``frontier``,
-``revisit``, ``info_gain`` and the shipped PPO policy
-(:data:`SHIPPED_POLICY`, trained on ``SeifExplore-v0``) on the same held-out
-seeds of ``--env`` (default ``SeifExplore-v2``, the newest version, where the
-README's first table was measured; its tables on ``-v1`` and ``-v0`` are the
-same command with ``--env``; training never resets with these seeds), prints
-the table (means with 95% confidence intervals) and the paired comparison with the best baseline (the mean
-per-seed difference of the final map error with its 95% Student-t interval,
-:func:`agents.evaluate.paired_comparison`; the policy *beats* the best
-baseline only when that interval lies below zero), writes ``results.csv``,
-``summary.json``, ``summary.md`` and ``map_error.png`` to ``--out``, and
-records one episode of the shipped policy as ``episode.gif``. Progress goes
-to stderr (``--quiet``: none).
+``revisit``, ``info_gain`` and the shipped PPO policy (:data:`SHIPPED_POLICY`,
+trained on ``SeifExplore-v0``) on the same held-out seeds of ``--env``
+(default ``SeifExplore-v2``, the newest version, where the README's first
+table was measured; its tables on ``-v1`` and ``-v0`` are the same command
+with ``--env``; training never resets with these seeds), prints the table
+(means with 95% confidence intervals) and the paired comparison with the best
+baseline (the mean per-seed difference of the final map error with its 95%
+Student-t interval, :func:`agents.evaluate.paired_comparison`; the policy
+*beats* the best baseline only when that interval lies below zero), writes
+``results.csv``, ``summary.json``, ``summary.md`` and ``map_error.png`` to
+``--out``, and records one episode of the shipped policy as ``episode.gif``.
+Progress goes to stderr (``--quiet``: none).
 """
 
 from __future__ import annotations

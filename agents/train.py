@@ -31,6 +31,10 @@ here what it means there, and a run of either command is read by
 * ``--init-from MODEL.zip``: start from a saved model's weights *and* its
   normalisation statistics (found by :func:`agents.checkpoints.vecnormalize_path`),
   with this run's hyperparameters (fine-tuning);
+* ``--kickstart BASELINE``: before learning, clone a baseline (``info_gain``)
+  into the policy, on its own episodes and then ``--dagger-rounds`` DAgger
+  rounds, ``--kickstart-episodes`` episodes in all on training seeds drawn
+  from ``--seed`` (:mod:`agents.imitation`); PPO then learns from the clone;
 * ``--out DIR``: the run's folder exactly (default: rl-zoo3's
   ``-f logs`` layout, ``logs/<algo>/<EnvId>_<N>``, which ``enjoy -f logs``
   finds).
@@ -66,6 +70,7 @@ from pathlib import Path
 from typing import Any
 
 import gymnasium as gym
+import numpy as np
 import yaml
 
 import seif_gym  # noqa: F401  (registers the envs)
@@ -189,6 +194,21 @@ def build_parser() -> argparse.ArgumentParser:
         default=None,
         help="a saved .zip whose weights and normalisation statistics start this run (fine-tuning)",
     )
+    parser.add_argument(
+        "--kickstart",
+        default=None,
+        metavar="BASELINE",
+        help="before learning, clone this baseline (e.g. info_gain) into the policy: its episodes, then "
+        "DAgger rounds (agents.imitation)",
+    )
+    parser.add_argument(
+        "--kickstart-episodes",
+        type=int,
+        default=48,
+        help="episodes of the cloning, split between the baseline's own and the DAgger rounds' (training seeds "
+        "drawn from --seed)",
+    )
+    parser.add_argument("--dagger-rounds", type=int, default=2, help="DAgger rounds of the cloning")
     parser.add_argument(
         "--wrapper",
         default=None,
@@ -425,7 +445,43 @@ def prepare(args: argparse.Namespace) -> tuple[Any, Any]:
                 f"agents.train: weights from {args.init_from}, statistics from {stats or '(none saved)'}",
                 file=sys.stderr,
             )
+    if args.kickstart:
+        _kickstart(args, experiment, model)
     return experiment, model
+
+
+def kickstart_seeds(seed: int, episodes: int) -> list[int]:
+    """The cloning's episode seeds of training seed ``seed``: ``episodes`` distinct seeds of the training split."""
+    from agents.benchmark import VALIDATION_SEED  # the training split is every seed below it
+
+    if episodes < 1:
+        raise ValueError(f"--kickstart-episodes must be at least 1, got {episodes}")
+    return sorted(int(s) for s in np.random.default_rng(seed).choice(VALIDATION_SEED, size=episodes, replace=False))
+
+
+def _kickstart(args: argparse.Namespace, experiment: Any, model: Any) -> None:
+    """Clone ``--kickstart`` into ``model`` on the training envs' wrapped single env (agents.imitation)."""
+    from agents.baselines import BASELINES
+    from agents.imitation import kickstart
+
+    if args.kickstart not in BASELINES:
+        raise ValueError(f"--kickstart: unknown baseline {args.kickstart!r}; baselines: {', '.join(BASELINES)}")
+    if args.algo != "ppo":
+        raise ValueError(f"--kickstart: clones into PPO's actor-critic policy, got --algo {args.algo}")
+    seeds = kickstart_seeds(args.seed, args.kickstart_episodes)
+    env_id, env_kwargs, wrapper = experiment.env_name.gym_id, dict(experiment.env_kwargs), experiment.env_wrapper
+
+    def make_env() -> gym.Env:
+        env = gym.make(env_id, **env_kwargs)
+        return wrapper(env) if wrapper is not None else env
+
+    def say(line: str) -> None:
+        if not args.quiet:
+            print(f"agents.train: {line}", file=sys.stderr)
+
+    started = time.perf_counter()
+    kickstart(model, make_env, args.kickstart, seeds=seeds, dagger_rounds=args.dagger_rounds, log=say)
+    say(f"kickstart: {time.perf_counter() - started:.0f} s")
 
 
 def train(args: argparse.Namespace) -> Path:

@@ -429,6 +429,8 @@ def prepare(args: argparse.Namespace) -> tuple[Any, Any]:
 
     if args.env.split(":")[-1] not in gym.registry:
         raise ValueError(f"--env: unknown env {args.env!r}")
+    if args.kickstart:
+        _check_kickstart(args)
     set_random_seed(args.seed)  # as rl_zoo3.train does before building the experiment
     experiment = _experiment_class()(args)
     with _maybe_silent(args.quiet):
@@ -459,15 +461,23 @@ def kickstart_seeds(seed: int, episodes: int) -> list[int]:
     return sorted(int(s) for s in np.random.default_rng(seed).choice(VALIDATION_SEED, size=episodes, replace=False))
 
 
-def _kickstart(args: argparse.Namespace, experiment: Any, model: Any) -> None:
-    """Clone ``--kickstart`` into ``model`` on the training envs' wrapped single env (agents.imitation)."""
+def _check_kickstart(args: argparse.Namespace) -> None:
+    """``ValueError`` for ``--kickstart`` arguments that cannot work, before anything is built."""
     from agents.baselines import BASELINES
-    from agents.imitation import kickstart
 
     if args.kickstart not in BASELINES:
         raise ValueError(f"--kickstart: unknown baseline {args.kickstart!r}; baselines: {', '.join(BASELINES)}")
     if args.algo != "ppo":
         raise ValueError(f"--kickstart: clones into PPO's actor-critic policy, got --algo {args.algo}")
+    if args.init_from:
+        raise ValueError("--kickstart and --init-from both choose the starting weights: pass one of them")
+    kickstart_seeds(args.seed, args.kickstart_episodes)
+
+
+def _kickstart(args: argparse.Namespace, experiment: Any, model: Any) -> None:
+    """Clone ``--kickstart`` into ``model`` on the training envs' wrapped single env (agents.imitation)."""
+    from agents.imitation import kickstart
+
     seeds = kickstart_seeds(args.seed, args.kickstart_episodes)
     env_id, env_kwargs, wrapper = experiment.env_name.gym_id, dict(experiment.env_kwargs), experiment.env_wrapper
 

@@ -153,6 +153,7 @@ def test_kickstart_seeds_are_training_seeds_of_the_run():
         (["--kickstart", "oracle"], "--kickstart: unknown baseline"),
         (["--kickstart", "frontier", "--kickstart-episodes", "0"], "--kickstart-episodes"),
         (["--kickstart", "frontier", "--kickstart-episodes", "2", "--dagger-rounds", "3"], "seeds"),
+        (["--kickstart", "frontier", "--init-from", "agents/policies/ppo_budget_v2.zip"], "pass one of them"),
     ],
 )
 def test_bad_kickstart_arguments_are_refused(tmp_path, extra, message):

@@ -40,7 +40,14 @@ import gymnasium as gym
 import numpy as np
 from numpy.typing import ArrayLike
 
-__all__ = ["Demonstrations", "behaviour_clone", "collect_demonstrations", "discounted_returns", "kickstart"]
+__all__ = [
+    "Demonstrations",
+    "behaviour_clone",
+    "collect_demonstrations",
+    "discounted_returns",
+    "kickstart",
+    "running_returns",
+]
 
 
 @dataclass
@@ -150,8 +157,12 @@ def collect_demonstrations(
     return Demonstrations.concatenate(parts)
 
 
-def reward_statistics(demonstrations: Demonstrations, gamma: float) -> tuple[float, float, int]:
-    """``VecNormalize.ret_rms`` (mean, var, count) of the running discounted return over the episodes."""
+def running_returns(demonstrations: Demonstrations, gamma: float) -> np.ndarray:
+    """The running discounted return ``R_t = gamma * R_{t-1} + r_t`` (restarted after each episode's end).
+
+    What ``VecNormalize`` accumulates per env and feeds to its reward statistics
+    (``ret_rms``), step by step.
+    """
     running = 0.0
     values = np.empty(len(demonstrations))
     for t, (reward, done) in enumerate(zip(demonstrations.rewards, demonstrations.dones, strict=True)):
@@ -159,7 +170,7 @@ def reward_statistics(demonstrations: Demonstrations, gamma: float) -> tuple[flo
         values[t] = running
         if done:
             running = 0.0
-    return float(values.mean()), float(values.var()), int(values.size)
+    return values
 
 
 def behaviour_clone(
@@ -186,6 +197,8 @@ def behaviour_clone(
     n = len(demonstrations)
     if n == 0:
         raise ValueError("demonstrations: no steps")
+    if int(epochs) < 1 or int(batch_size) < 1:
+        raise ValueError(f"epochs and batch_size must be positive, got {epochs} and {batch_size}")
     if value_targets is not None and np.shape(value_targets) != (n,):
         raise ValueError(f"value_targets must have shape ({n},), got {np.shape(value_targets)}")
     generator = np.random.default_rng(seed)
@@ -243,13 +256,15 @@ def kickstart(
     say = log if log is not None else (lambda _: None)
 
     teacher_demos = collect_demonstrations(make_env, teacher, batches[0].tolist())
-    scale = 1.0
+    rewards = teacher_demos.rewards
     if vec_normalize is not None and vec_normalize.norm_reward:
-        mean, var, count = reward_statistics(teacher_demos, gamma)
-        vec_normalize.ret_rms.mean, vec_normalize.ret_rms.var, vec_normalize.ret_rms.count = mean, var, count
-        scale = float(np.sqrt(var + vec_normalize.epsilon))
-    returns = discounted_returns(teacher_demos.rewards / scale, teacher_demos.dones, gamma)
-    say(f"kickstart: {len(teacher_demos)} teacher steps, return scale {scale:.3g}")
+        from stable_baselines3.common.running_mean_std import RunningMeanStd
+
+        vec_normalize.ret_rms = RunningMeanStd(shape=())
+        vec_normalize.ret_rms.update(running_returns(teacher_demos, gamma))
+        rewards = vec_normalize.normalize_reward(rewards)  # as PPO will see them
+    returns = discounted_returns(rewards, teacher_demos.dones, gamma)
+    say(f"kickstart: {len(teacher_demos)} teacher steps")
     losses = behaviour_clone(model.policy, teacher_demos, value_targets=returns, epochs=epochs, seed=seeds[0])
     say(f"kickstart: cloned, loss {losses[0]:.3f} -> {losses[-1]:.3f}")
     every, targets = teacher_demos, returns

@@ -46,6 +46,7 @@ __all__ = [
     "collect_demonstrations",
     "discounted_returns",
     "kickstart",
+    "round_seeds",
     "running_returns",
 ]
 
@@ -229,6 +230,20 @@ def behaviour_clone(
     return losses
 
 
+def round_seeds(seeds: Sequence[int], dagger_rounds: int) -> list[np.ndarray]:
+    """``seeds`` split evenly into the teacher's episodes and each of ``dagger_rounds`` DAgger rounds.
+
+    >>> [batch.tolist() for batch in round_seeds([1, 2, 3, 4, 5], dagger_rounds=1)]
+    [[1, 2, 3], [4, 5]]
+    """
+    if isinstance(dagger_rounds, bool) or not isinstance(dagger_rounds, (int, np.integer)) or dagger_rounds < 0:
+        raise ValueError(f"dagger_rounds must be a non-negative integer, got {dagger_rounds!r}")
+    rounds = int(dagger_rounds) + 1
+    if len(seeds) < rounds:
+        raise ValueError(f"seeds: need at least {rounds} (one per round), got {len(seeds)}")
+    return np.array_split(np.asarray([int(s) for s in seeds]), rounds)
+
+
 def kickstart(
     model: Any,
     make_env: Callable[[], gym.Env],
@@ -246,11 +261,8 @@ def kickstart(
     normalises rewards) are set from the teacher's episodes, and the critic
     is fitted to their normalised returns. Returns every labelled step.
     """
-    seeds = [int(s) for s in seeds]
-    rounds = int(dagger_rounds) + 1
-    if len(seeds) < rounds:
-        raise ValueError(f"seeds: need at least {rounds} (one per round), got {len(seeds)}")
-    batches = np.array_split(np.asarray(seeds), rounds)
+    batches = round_seeds(seeds, dagger_rounds)
+    first = int(batches[0][0])  # seeds each round's minibatch order
     gamma = float(model.gamma)
     vec_normalize = model.get_vec_normalize_env()
     say = log if log is not None else (lambda _: None)
@@ -265,19 +277,19 @@ def kickstart(
         rewards = vec_normalize.normalize_reward(rewards)  # as PPO will see them
     returns = discounted_returns(rewards, teacher_demos.dones, gamma)
     say(f"kickstart: {len(teacher_demos)} teacher steps")
-    losses = behaviour_clone(model.policy, teacher_demos, value_targets=returns, epochs=epochs, seed=seeds[0])
+    losses = behaviour_clone(model.policy, teacher_demos, value_targets=returns, epochs=epochs, seed=first)
     say(f"kickstart: cloned, loss {losses[0]:.3f} -> {losses[-1]:.3f}")
     every, targets = teacher_demos, returns
-    for k in range(1, rounds):
 
-        def drive(observation: Mapping[str, np.ndarray]) -> np.ndarray:
-            return np.asarray(model.predict(dict(observation), deterministic=True)[0])
+    def drive(observation: Mapping[str, np.ndarray]) -> np.ndarray:
+        return np.asarray(model.predict(dict(observation), deterministic=True)[0])
 
+    for k in range(1, len(batches)):
         visited = collect_demonstrations(make_env, teacher, batches[k].tolist(), learner=drive)
         every = Demonstrations.concatenate([every, visited])
         # the critic keeps to the teacher's returns (the value of the teacher's policy); the
         # learner's visits are labelled with actions only
         targets = np.concatenate([targets, np.full(len(visited), np.nan)])
-        losses = behaviour_clone(model.policy, every, value_targets=targets, epochs=epochs, seed=seeds[0] + k)
+        losses = behaviour_clone(model.policy, every, value_targets=targets, epochs=epochs, seed=first + k)
         say(f"kickstart: DAgger round {k}, {len(every)} steps, loss {losses[0]:.3f} -> {losses[-1]:.3f}")
     return every

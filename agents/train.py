@@ -471,7 +471,12 @@ def _check_kickstart(args: argparse.Namespace) -> None:
         raise ValueError(f"--kickstart: clones into PPO's actor-critic policy, got --algo {args.algo}")
     if args.init_from:
         raise ValueError("--kickstart and --init-from both choose the starting weights: pass one of them")
-    kickstart_seeds(args.seed, args.kickstart_episodes)
+    from agents.imitation import round_seeds
+
+    try:
+        round_seeds(kickstart_seeds(args.seed, args.kickstart_episodes), args.dagger_rounds)
+    except ValueError as error:
+        raise ValueError(f"--kickstart-episodes/--dagger-rounds: {error}") from error
 
 
 def _kickstart(args: argparse.Namespace, experiment: Any, model: Any) -> None:

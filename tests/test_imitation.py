@@ -160,9 +160,12 @@ def test_kickstart_seeds_are_training_seeds_of_the_run():
         (["--kickstart", "oracle"], "--kickstart: unknown baseline"),
         (["--kickstart", "frontier", "--kickstart-episodes", "0"], "--kickstart-episodes"),
         (["--kickstart", "frontier", "--kickstart-episodes", "2", "--dagger-rounds", "3"], "seeds"),
+        (["--kickstart", "frontier", "--dagger-rounds", "-1"], "non-negative"),
         (["--kickstart", "frontier", "--init-from", "agents/policies/ppo_budget_v2.zip"], "pass one of them"),
     ],
 )
 def test_bad_kickstart_arguments_are_refused(tmp_path, extra, message):
+    run = tmp_path / "run"
     with pytest.raises(ValueError, match=message):
-        prepare(build_parser().parse_args([*SMALL, "--out", str(tmp_path), "--quiet", *extra]))
+        prepare(build_parser().parse_args([*SMALL, "--out", str(run), "--quiet", *extra]))
+    assert not run.exists()  # refused before anything was built

@@ -35,6 +35,11 @@ here what it means there, and a run of either command is read by
   into the policy, on its own episodes and then ``--dagger-rounds`` DAgger
   rounds, ``--kickstart-episodes`` episodes in all on training seeds drawn
   from ``--seed`` (:mod:`agents.imitation`); PPO then learns from the clone;
+* ``--mix-env ID`` (repeatable): train on a mixture of tasks. The training
+  envs take the ids ``--env``, then each ``--mix-env`` in turn by rank (8 envs
+  and one ``--mix-env``: four of each); the config's entry, the validation
+  and the checkpoints' selection stay those of ``--env``. The ids must share
+  the observation and action spaces (the budget layouts do);
 * ``--out DIR``: the run's folder exactly (default: rl-zoo3's
   ``-f logs`` layout, ``logs/<algo>/<EnvId>_<N>``, which ``enjoy -f logs``
   finds).
@@ -156,6 +161,14 @@ def build_parser() -> argparse.ArgumentParser:
         "-f", "--log-folder", default="logs", help="rl-zoo3's log folder: runs go to LOG_FOLDER/ALGO/ENV_N"
     )
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument(
+        "--mix-env",
+        action="append",
+        default=[],
+        metavar="ID",
+        help="another registered env id for a share of the training envs (repeatable): ranks cycle through "
+        "--env and these; validation stays on --env",
+    )
     parser.add_argument("--n-envs", type=int, default=None, help="overrides the entry's n_envs")
     parser.add_argument(
         "--vec-env",
@@ -312,10 +325,12 @@ def _experiment_class() -> type:
 
         # -- envs ------------------------------------------------------------------------------------
         def uses_native(self) -> bool:
-            """Whether the training envs are the native vector env (no single-env wrapper in the way)."""
-            return self.native and self.env_wrapper is None
+            """Whether the training envs are the native vector env (no single-env wrapper or mixture in the way)."""
+            return self.native and self.env_wrapper is None and not self.options.mix_env
 
         def create_envs(self, n_envs: int, eval_env: bool = False, no_log: bool = False) -> VecEnv:
+            if self.options.mix_env and not eval_env:
+                return self._mixed_envs(n_envs, no_log=no_log)
             if not self.uses_native():
                 return super().create_envs(n_envs, eval_env=eval_env, no_log=no_log)
             from agents.sb3_vec_env import NativeVecEnv
@@ -328,6 +343,43 @@ def _experiment_class() -> type:
             if self.vec_env_wrapper is not None:
                 env = self.vec_env_wrapper(env)
             env = self._maybe_normalize(env, eval_env)
+            if self.frame_stack is not None:
+                env = VecFrameStack(env, self.frame_stack)
+            return env
+
+        def _mixed_envs(self, n_envs: int, no_log: bool) -> VecEnv:
+            """The training envs of ``--mix-env``: rank ``r`` runs ``ids[r % len(ids)]``, ``ids = [--env, *mix]``.
+
+            Each single env is built as rl-zoo3 builds its own (``make_vec_env``: the
+            monitor, then the config's ``env_wrapper``, the action space seeded with
+            ``seed + rank`` and the vector env with ``seed``), then the config's
+            vector-env wrapper, normalisation and frame stack.
+            """
+            from stable_baselines3.common.monitor import Monitor
+
+            ids = [self.env_name.gym_id, *self.options.mix_env]  # checked by prepare (mixture_ids)
+            specs = [gym.spec(env_id) for env_id in ids]
+            log_dir = None if no_log else self.save_path
+            env_kwargs, wrapper, seed = dict(self.env_kwargs), self.env_wrapper, self.seed
+            monitor_kwargs, vec_env_kwargs = dict(self.monitor_kwargs), dict(self.vec_env_kwargs)
+
+            def make(rank: int) -> Any:
+                def thunk() -> gym.Env:
+                    env = specs[rank % len(specs)].make(**env_kwargs)
+                    log = None if log_dir is None else os.path.join(log_dir, str(rank))
+                    env = Monitor(env, filename=log, **monitor_kwargs)
+                    if wrapper is not None:
+                        env = wrapper(env)
+                    env.action_space.seed(seed + rank)
+                    return env
+
+                return thunk
+
+            env: VecEnv = self.vec_env_class([make(rank) for rank in range(n_envs)], **vec_env_kwargs)
+            env.seed(seed)
+            if self.vec_env_wrapper is not None:
+                env = self.vec_env_wrapper(env)
+            env = self._maybe_normalize(env, False)
             if self.frame_stack is not None:
                 env = VecFrameStack(env, self.frame_stack)
             return env
@@ -417,6 +469,33 @@ def _experiment_class() -> type:
     return SeifExperiment
 
 
+def mixture_ids(env_id: str, mix: Sequence[str], env_kwargs: dict[str, Any] | None = None) -> list[str]:
+    """The ids of a ``--mix-env`` training, in rank order: ``[env_id, *mix]``.
+
+    Each is made once (with ``env_kwargs``) to compare its spaces with ``env_id``'s.
+
+    Raises
+    ------
+    ValueError
+        If an id of ``mix`` is not registered, or its observation or action space differs from
+        ``env_id``'s (one policy reads them all).
+    """
+    ids = [env_id, *mix]
+    for other in mix:
+        if other.split(":")[-1] not in gym.registry:
+            raise ValueError(f"--mix-env: unknown env {other!r}")
+    if mix:
+        spaces = []
+        for each in ids:
+            env = gym.make(each, **(env_kwargs or {}))
+            spaces.append((env.observation_space, env.action_space))
+            env.close()
+        for other, space in zip(mix, spaces[1:], strict=True):
+            if space != spaces[0]:
+                raise ValueError(f"--mix-env: {other!r} has other observation or action spaces than --env {env_id!r}")
+    return ids
+
+
 def prepare(args: argparse.Namespace) -> tuple[Any, Any]:
     """The experiment and its model, ready to learn (config read, envs and callbacks built, ``--init-from`` applied).
 
@@ -429,6 +508,7 @@ def prepare(args: argparse.Namespace) -> tuple[Any, Any]:
 
     if args.env.split(":")[-1] not in gym.registry:
         raise ValueError(f"--env: unknown env {args.env!r}")
+    mixture_ids(args.env, args.mix_env, args.env_kwargs)
     if args.kickstart:
         _check_kickstart(args)
     set_random_seed(args.seed)  # as rl_zoo3.train does before building the experiment

@@ -23,7 +23,7 @@ pytest.importorskip("rl_zoo3", reason="rl_zoo3 is in the train extra")
 
 from agents.callbacks import MapErrorEvalCallback  # noqa: E402
 from agents.hyperparams import load  # noqa: E402
-from agents.train import build_parser, main, prepare, train  # noqa: E402
+from agents.train import build_parser, main, mixture_ids, prepare, train  # noqa: E402
 
 POLICIES = Path(SHIPPED_POLICY).parent
 #: a small, quick run: 2 envs of 10 landmarks and 60-step episodes, 2 rollouts of 2 x 128 steps
@@ -169,6 +169,34 @@ def test_bad_arguments_are_refused(tmp_path):
         build_parser().parse_args([*SMALL, "--eval-freq", "0"])
     with pytest.raises(SystemExit):
         build_parser().parse_args([*SMALL, "--env-kwargs", "[1]"])
+
+
+def test_mix_env_cycles_the_training_envs_through_the_ids_and_validates_on_env(tmp_path):
+    out = tmp_path / "mix"
+    argv = [*SMALL, "--mix-env", "SeifExploreLoop-v1", "--n-envs", "3", "--out", str(out), "--quiet"]
+    experiment, model = prepare(build_parser().parse_args(argv))
+    assert not experiment.uses_native()  # a mixture runs single envs
+    envs = model.get_env().venv.envs
+    assert [env.spec.id for env in envs] == ["SeifExplore-v1", "SeifExploreLoop-v1", "SeifExplore-v1"]
+    # the arguments reach every env, the layout stays each id's own
+    assert [env.unwrapped.config["num_landmarks"] for env in envs] == [10, 10, 10]
+    assert [env.unwrapped.config["layout"] for env in envs] == ["uniform", "loop", "uniform"]
+    (validation,) = [c for c in experiment.callbacks if isinstance(c, MapErrorEvalCallback)]
+    assert validation.env_id == "SeifExplore-v1"
+    model.learn(384)  # a rollout of 3 x 128 steps: each rank logs its own id's episodes
+    model.get_env().close()
+    heads = [json.loads((out / f"{rank}.monitor.csv").read_text().splitlines()[0][1:])["env_id"] for rank in range(3)]
+    assert heads == ["SeifExplore-v1", "SeifExploreLoop-v1", "SeifExplore-v1"]
+
+
+def test_mix_env_refuses_unknown_ids_and_other_spaces_before_building_the_run(tmp_path):
+    out = tmp_path / "mix"
+    with pytest.raises(ValueError, match="--mix-env: unknown env 'NoSuchEnv-v0'"):
+        prepare(build_parser().parse_args([*SMALL, "--mix-env", "NoSuchEnv-v0", "--out", str(out)]))
+    with pytest.raises(ValueError, match="--mix-env: 'CartPole-v1' has other observation or action spaces"):
+        prepare(build_parser().parse_args(["--env", "SeifExplore-v1", "--mix-env", "CartPole-v1", "--out", str(out)]))
+    assert mixture_ids("SeifExplore-v1", []) == ["SeifExplore-v1"]
+    assert not out.exists()
 
 
 # -- the validation callback -------------------------------------------------------------------------

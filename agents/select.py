@@ -1,0 +1,300 @@
+"""Choose a training run's checkpoint on the validation seeds, as the protocol says.
+
+Usage::
+
+    python -m agents.select runs/tll2_s1 runs/tll2_s2 runs/tll2_s3 --env SeifExploreClusteredBudget-v2 --workers 2
+
+The benchmark's protocol (``docs/benchmark.md``) lets a run's checkpoints be
+compared only on the *validation* seeds (500 000 … 500 099); the held-out
+seeds report the chosen one and choose nothing. This command does that step:
+for every run folder it scores every candidate (each checkpoint
+``rl_model_<N>_steps.zip``, the validation callback's
+``best_map_error/model.zip`` and the run's final model ``<EnvId>.zip``) and
+the baselines on the same validation seeds, with
+:func:`agents.evaluate.evaluate_agents`, and chooses the candidate of lowest
+mean final map error (ties go to the earlier checkpoint). It refuses seeds
+that reach into the held-out ones.
+
+Written, for each run, to ``RUN/selected/``: ``model.zip`` (a copy of the
+chosen candidate), its normalisation statistics as ``vecnormalize.pkl``
+(:mod:`agents.checkpoints` finds them there), and ``selection.json`` (what was
+chosen from what, on which seeds, with the figures); and to ``--out``:
+:func:`agents.evaluate.write_outputs` of the whole evaluation and
+``selection.md``, one table per run with each candidate's mean and paired
+difference to the best baseline. The callback's own choice rests on its 10 to
+30 episodes; on 100 it is often not the best (``docs/benchmark.md``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import re
+import shutil
+import sys
+import time
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+
+from agents import BASELINES
+from agents.benchmark import HELD_OUT_SEED, VALIDATION_SEED
+from agents.checkpoints import vecnormalize_path
+from agents.evaluate import PAIRED_METRIC, evaluate_agents, write_outputs
+from agents.parallel import Executor
+from agents.parallel import add_arguments as add_executor_arguments
+from agents.parallel import from_arguments as executor_from_arguments
+
+__all__ = ["Candidate", "candidates", "main", "select_checkpoints"]
+
+#: Episodes of the held-out split (``HELD_OUT_SEED`` … ``HELD_OUT_SEED + HELD_OUT_EPISODES − 1``).
+HELD_OUT_EPISODES = 100
+#: Episodes of the validation split.
+VALIDATION_EPISODES = 100
+
+_CHECKPOINT = re.compile(r"rl_model_(?P<steps>\d+)_steps\.zip")
+
+
+@dataclass(frozen=True)
+class Candidate:
+    """A saved model of a run that may be chosen.
+
+    Attributes
+    ----------
+    label : str
+        ``<run folder name>:<name>``: ``…:50000`` for a checkpoint, ``…:best`` for the
+        callback's best, ``…:final`` for the final model.
+    path : Path
+        The model's ``.zip``.
+    steps : int or None
+        Training steps of a checkpoint (``None`` for the other two).
+    """
+
+    label: str
+    path: Path
+    steps: int | None
+
+
+def candidates(run: str | Path) -> list[Candidate]:
+    """The models of run folder ``run``: checkpoints by steps, then the callback's best, then the final model.
+
+    Raises
+    ------
+    TypeError
+        If ``run`` is not a path.
+    ValueError
+        If ``run`` is not a folder, or holds no model.
+    """
+    if not isinstance(run, (str, Path)):
+        raise TypeError(f"run must be a path, got {type(run).__name__}")
+    folder = Path(run)
+    if not folder.is_dir():
+        raise ValueError(f"run: {str(folder)!r} is not a folder")
+    name = folder.name
+    found: list[Candidate] = []
+    checkpoints = [
+        (int(m["steps"]), p) for p in folder.glob("rl_model_*_steps.zip") if (m := _CHECKPOINT.fullmatch(p.name))
+    ]
+    for steps, path in sorted(checkpoints):
+        found.append(Candidate(f"{name}:{steps}", path, steps))
+    best = folder / "best_map_error" / "model.zip"
+    if best.is_file():
+        found.append(Candidate(f"{name}:best", best, None))
+    finals = sorted(p for p in folder.glob("*.zip") if not _CHECKPOINT.fullmatch(p.name))
+    for path in finals:  # rl-zoo3's <EnvId>.zip (one per run)
+        found.append(Candidate(f"{name}:final" if len(finals) == 1 else f"{name}:{path.stem}", path, None))
+    if not found:
+        raise ValueError(f"run: {str(folder)!r} holds no model (rl_model_<N>_steps.zip, best_map_error/, <EnvId>.zip)")
+    return found
+
+
+def _check_seeds(seed: int, episodes: int) -> None:
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)):
+        raise TypeError(f"seed must be an int, got {type(seed).__name__}")
+    if isinstance(episodes, bool) or not isinstance(episodes, (int, np.integer)) or episodes < 1:
+        raise ValueError(f"episodes must be a positive int, got {episodes!r}")
+    if seed < 0:
+        raise ValueError(f"seed must be >= 0, got {seed}")
+    if seed < HELD_OUT_SEED + HELD_OUT_EPISODES and seed + episodes > HELD_OUT_SEED:
+        raise ValueError(
+            f"seed: {seed}…{seed + episodes - 1} reaches into the held-out seeds {HELD_OUT_SEED}…"
+            f"{HELD_OUT_SEED + HELD_OUT_EPISODES - 1}, which choose nothing (docs/benchmark.md)"
+        )
+
+
+def select_checkpoints(
+    runs: Sequence[str | Path],
+    env_id: str,
+    env_kwargs: Mapping[str, Any] | None = None,
+    *,
+    episodes: int = VALIDATION_EPISODES,
+    seed: int = VALIDATION_SEED,
+    baselines: Sequence[str] = ("info_gain",),
+    executor: Executor | None = None,
+    verbose: bool = False,
+) -> tuple[dict[str, dict[str, Any]], list[dict[str, Any]], dict[str, Any]]:
+    """Score every candidate of every run on the seeds ``seed … seed + episodes − 1`` and choose one per run.
+
+    Parameters
+    ----------
+    runs : sequence of path
+        Run folders of ``agents.train`` (or rl-zoo3), each with at least one model.
+    env_id : str
+        The task the models are chosen for (it need not be the one they trained on).
+    env_kwargs : mapping, optional
+        Keyword arguments of ``gym.make``.
+    episodes, seed : int
+        The validation seeds (default: the protocol's 100 from 500 000); they may not reach into
+        the held-out seeds.
+    baselines : sequence of str
+        Baselines run on the same seeds; the best of them is the reference of the paired differences.
+    executor : agents.parallel.Executor, optional
+        Where the episodes run.
+    verbose : bool
+        Progress on stderr.
+
+    Returns
+    -------
+    selection : dict
+        Run folder -> ``{"chosen", "path", "steps", "mean", "candidates": {label: mean}, "paired"}``.
+    rows, summary
+        :func:`agents.evaluate.evaluate_agents`' results of every candidate and baseline.
+
+    Raises
+    ------
+    TypeError, ValueError
+        On a bad argument (named), before any episode runs: a run folder without models, the same
+        folder twice, an unknown baseline or env id, seeds in the held-out range.
+    """
+    _check_seeds(seed, episodes)
+    if isinstance(env_id, str) and env_id.split(":")[-1] not in gym.registry:
+        raise ValueError(f"env_id: unknown env {env_id!r}")
+    if isinstance(baselines, str) or not all(b in BASELINES for b in baselines):
+        raise ValueError(f"baselines must be names of {BASELINES}, got {baselines!r}")
+    per_run = {str(run): candidates(run) for run in runs}
+    if len(per_run) != len(runs) or len({Path(r).resolve() for r in runs}) != len(runs):
+        raise ValueError(f"runs: a folder is given twice: {[str(r) for r in runs]}")
+    labels = [c.label for found in per_run.values() for c in found]
+    if len(set(labels)) != len(labels):
+        raise ValueError("runs: two run folders have the same name; their candidates' labels would clash")
+    if any("=" in label or "," in label for label in labels):
+        raise ValueError("runs: a run folder's name holds '=' or ',', which agent specs reserve")
+    specs = [*baselines, *(f"{c.label}={c.path}" for found in per_run.values() for c in found)]
+    rows, summary = evaluate_agents(specs, episodes, seed, env_id, env_kwargs, verbose=verbose, executor=executor)
+    means = {label: float(entry[PAIRED_METRIC]["mean"]) for label, entry in summary["agents"].items()}
+    paired = summary["paired"]["agents"]
+    selection: dict[str, dict[str, Any]] = {}
+    for run, found in per_run.items():
+        # the lowest mean; on a tie the first in candidates' order (the earlier checkpoint)
+        chosen = min(found, key=lambda c: means[c.label])
+        selection[run] = {
+            "chosen": chosen.label,
+            "path": str(chosen.path),
+            "steps": chosen.steps,
+            "mean": means[chosen.label],
+            "candidates": {c.label: means[c.label] for c in found},
+            "paired": paired.get(chosen.label),
+        }
+    return selection, rows, summary
+
+
+def save_selected(run: str | Path, choice: Mapping[str, Any], provenance: Mapping[str, Any]) -> Path:
+    """Copy the chosen model (and its statistics) to ``run/selected/`` with ``selection.json``; returns the model."""
+    folder = Path(run) / "selected"
+    folder.mkdir(exist_ok=True)
+    source = Path(choice["path"])
+    model = folder / "model.zip"
+    shutil.copyfile(source, model)
+    stats = vecnormalize_path(source)
+    (folder / "vecnormalize.pkl").unlink(missing_ok=True)  # never keep statistics of an earlier choice
+    if stats is not None:
+        shutil.copyfile(stats, folder / "vecnormalize.pkl")
+    record = {**provenance, **choice, "statistics": None if stats is None else str(stats)}
+    (folder / "selection.json").write_text(json.dumps(record, indent=2, allow_nan=False) + "\n")
+    return model
+
+
+def _signed(value: float | None) -> str:
+    return "—" if value is None else f"{value:+.3f}"
+
+
+def selection_table(selection: Mapping[str, Mapping[str, Any]], summary: Mapping[str, Any]) -> str:
+    """Markdown: per run, each candidate's mean final map error and paired difference to the best baseline."""
+    paired = summary["paired"]
+    reference = paired["reference"]
+    reference_mean = summary["agents"][reference][PAIRED_METRIC]["mean"]
+    lines = []
+    for run, choice in selection.items():
+        lines += [
+            f"### {run}",
+            "",
+            f"| candidate | final map error (m) | − {reference} ({reference_mean:.3f}), paired 95% | verdict |",
+            "|---|--:|--:|---|",
+        ]
+        for label, mean in choice["candidates"].items():
+            p = paired["agents"][label]
+            mark = " (chosen)" if label == choice["chosen"] else ""
+            interval = f"{_signed(p['mean'])} [{_signed(p['ci95_low'])}, {_signed(p['ci95_high'])}]"
+            lines.append(f"| {label}{mark} | {mean:.3f} | {interval} | {p['verdict']} |")
+        lines.append("")
+    return "\n".join(lines)
+
+
+def _parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="python -m agents.select",
+        description="Score every checkpoint of training runs on the validation seeds and choose one per run.",
+    )
+    parser.add_argument("runs", nargs="+", help="run folders (agents.train --out)")
+    parser.add_argument("--env", required=True, help="the task to choose for (a registered env id)")
+    parser.add_argument("--env-kwargs", default="{}", help="JSON object of gym.make keyword arguments")
+    parser.add_argument("--episodes", type=int, default=VALIDATION_EPISODES, help="validation episodes (default 100)")
+    parser.add_argument(
+        "--seed", type=int, default=VALIDATION_SEED, help=f"first validation seed (default {VALIDATION_SEED})"
+    )
+    parser.add_argument(
+        "--baselines", default="info_gain", help="comma-separated baselines to pair with (default info_gain)"
+    )
+    parser.add_argument("--out", default="selection", help="folder of the evaluation's outputs (default ./selection)")
+    parser.add_argument("--quiet", action="store_true", help="no progress on stderr")
+    add_executor_arguments(parser)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Command-line entry point; returns the exit status."""
+    parser = _parser()
+    args = parser.parse_args(argv)
+    try:
+        env_kwargs = json.loads(args.env_kwargs)
+    except json.JSONDecodeError as error:
+        parser.error(f"--env-kwargs is not valid JSON: {error}")
+    if not isinstance(env_kwargs, dict):
+        parser.error("--env-kwargs must be a JSON object")
+    baselines = [b.strip() for b in args.baselines.split(",") if b.strip()]
+    executor = executor_from_arguments(args, parser)
+    started = time.perf_counter()
+    try:
+        selection, rows, summary = select_checkpoints(
+            args.runs, args.env, env_kwargs, episodes=args.episodes, seed=args.seed, baselines=baselines,
+            executor=executor, verbose=not args.quiet,
+        )  # fmt: skip
+    except (TypeError, ValueError) as error:
+        parser.error(str(error))
+    write_outputs(rows, summary, args.out)
+    table = selection_table(selection, summary)
+    Path(args.out, "selection.md").write_text(table + "\n")
+    provenance = {"env_id": args.env, "env_kwargs": env_kwargs, "seeds": [args.seed, args.seed + args.episodes - 1]}
+    print(f"{args.env}, validation seeds {args.seed}..{args.seed + args.episodes - 1}\n\n{table}")
+    for run, choice in selection.items():
+        print(f"{run}: chose {choice['chosen']} -> {save_selected(run, choice, provenance)}")
+    print(f"wrote {args.out}/ in {time.perf_counter() - started:.1f} s")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,134 @@
+"""agents.select: every checkpoint of a run scored on validation seeds, the lowest mean chosen and copied."""
+
+from __future__ import annotations
+
+import csv
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+import seif_gym  # noqa: F401
+from agents.benchmark import HELD_OUT_SEED
+from agents.checkpoints import save_with_vecnormalize, vecnormalize_path
+from agents.select import candidates, main, select_checkpoints
+
+TINY = {"num_landmarks": 10, "max_episode_steps": 20}
+
+
+def _model(tmp_path: Path):
+    from stable_baselines3 import PPO
+    from stable_baselines3.common.env_util import make_vec_env
+    from stable_baselines3.common.vec_env import VecNormalize
+
+    from agents.networks import BeliefPolicy
+
+    venv = VecNormalize(make_vec_env("SeifExplore-v1", n_envs=1, seed=0, env_kwargs=TINY), norm_obs=False)
+    return PPO(BeliefPolicy, venv, n_steps=32, batch_size=32, device="cpu", seed=0)
+
+
+def _drive(model, forward: float, turn: float) -> None:
+    """Make the deterministic action the constant (forward, turn): zero weights, the bias set."""
+    action_net = model.policy.action_net
+    with torch.no_grad():
+        action_net.weight.zero_()
+        action_net.bias.copy_(torch.tensor([forward, turn]))
+
+
+@pytest.fixture()
+def run(tmp_path):
+    """A run folder with three checkpoints (turn on the spot, drive and turn, drive straight), best and final."""
+    model = _model(tmp_path)
+    folder = tmp_path / "run_a"
+    for steps, (forward, turn) in ((100, (-1.0, 1.0)), (200, (1.0, 0.3)), (300, (0.8, 0.0))):
+        _drive(model, forward, turn)
+        model.get_vec_normalize_env().ret_rms.mean = np.array(float(steps))  # tells the statistics apart
+        save_with_vecnormalize(model, folder / f"rl_model_{steps}_steps.zip")
+    save_with_vecnormalize(model, folder / "best_map_error" / "model.zip")
+    model.save(folder / "SeifExplore-v1.zip")
+    model.get_env().close()
+    return folder
+
+
+def test_candidates_are_the_checkpoints_by_steps_then_best_then_final(run):
+    found = candidates(run)
+    assert [c.label for c in found] == ["run_a:100", "run_a:200", "run_a:300", "run_a:best", "run_a:final"]
+    assert [c.steps for c in found] == [100, 200, 300, None, None]
+    assert found[3].path == run / "best_map_error" / "model.zip"
+
+
+def test_select_chooses_the_lowest_validation_mean_and_copies_it_with_its_statistics(run, tmp_path, capsys):
+    out = tmp_path / "selection"
+    argv = [str(run), "--env", "SeifExplore-v1", "--env-kwargs", json.dumps(TINY), "--episodes", "3", "--seed", "7"]
+    assert main([*argv, "--out", str(out), "--quiet"]) == 0
+    rows = list(csv.DictReader((out / "results.csv").open()))
+    assert {int(r["seed"]) for r in rows} == {7, 8, 9}
+    means = {}
+    for row in rows:
+        means.setdefault(row["agent"], []).append(float(row["final_map_error"]))
+    scored = {label: float(np.mean(values)) for label, values in means.items() if label != "info_gain"}
+    assert set(scored) == {"run_a:100", "run_a:200", "run_a:300", "run_a:best", "run_a:final"}
+    assert scored["run_a:100"] != scored["run_a:200"]  # the candidates act differently
+    lowest = min(scored.values())
+    chosen_label = next(label for label in scored if scored[label] == lowest)  # the first of the lowest
+    record = json.loads((run / "selected" / "selection.json").read_text())
+    assert record["chosen"] == chosen_label and record["mean"] == pytest.approx(lowest)
+    assert record["seeds"] == [7, 9] and record["env_id"] == "SeifExplore-v1"
+    source = Path(record["path"])
+    assert (run / "selected" / "model.zip").read_bytes() == source.read_bytes()
+    # the statistics of the same moment come along, found where agents.checkpoints looks
+    stats = vecnormalize_path(run / "selected" / "model.zip")
+    assert stats == run / "selected" / "vecnormalize.pkl"
+    assert stats.read_bytes() == vecnormalize_path(source).read_bytes()
+    table = (out / "selection.md").read_text()
+    assert f"| {chosen_label} (chosen) |" in table and "− info_gain" in table
+    assert chosen_label in capsys.readouterr().out
+
+
+def test_a_later_choice_without_statistics_removes_the_earlier_ones(run, tmp_path):
+    selected = run / "selected"
+    selected.mkdir()
+    (selected / "vecnormalize.pkl").write_bytes(b"stale")
+    for checkpoint in run.glob("rl_model_*"):
+        checkpoint.unlink()
+    (run / "best_map_error").rename(tmp_path / "elsewhere")  # only the final model, saved without statistics
+    argv = [str(run), "--env", "SeifExplore-v1", "--env-kwargs", json.dumps(TINY), "--episodes", "1"]
+    assert main([*argv, "--seed", "3", "--out", str(tmp_path / "sel"), "--quiet"]) == 0
+    assert json.loads((selected / "selection.json").read_text())["chosen"] == "run_a:final"
+    assert not (selected / "vecnormalize.pkl").exists()
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "match"),
+    [
+        ({"seed": HELD_OUT_SEED - 50}, "held-out"),
+        ({"seed": HELD_OUT_SEED + 99}, "held-out"),
+        ({"episodes": 0}, "episodes"),
+        ({"seed": -1}, "seed"),
+        ({"baselines": ("greedy",)}, "baselines"),
+    ],
+)
+def test_bad_arguments_are_refused_before_any_episode(run, kwargs, match):
+    with pytest.raises(ValueError, match=match):
+        select_checkpoints([run], "SeifExplore-v1", TINY, **kwargs)
+    assert not (run / "selected").exists()
+
+
+def test_runs_without_models_or_twice_or_unknown_env_are_refused(run, tmp_path):
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    with pytest.raises(ValueError, match="holds no model"):
+        select_checkpoints([empty], "SeifExplore-v1", TINY)
+    with pytest.raises(ValueError, match="is not a folder"):
+        select_checkpoints([tmp_path / "missing"], "SeifExplore-v1", TINY)
+    with pytest.raises(ValueError, match="given twice"):
+        select_checkpoints([run, run], "SeifExplore-v1", TINY)
+    with pytest.raises(ValueError, match="env_id"):
+        select_checkpoints([run], "NoSuchEnv-v0", TINY)
+    with pytest.raises(TypeError, match="run"):
+        candidates(3)  # type: ignore[arg-type]
+    with pytest.raises(SystemExit):
+        main([str(empty), "--env", "SeifExplore-v1"])
+    assert not (run / "selected").exists()

@@ -110,6 +110,7 @@ from scipy import stats
 
 import seif_gym  # noqa: F401  (registers the environments)
 from agents.baselines import BASELINES, Agent, baseline_class, make_agent
+from agents.cli import json_object
 from agents.parallel import Executor, chunks
 from agents.parallel import add_arguments as add_executor_arguments
 from agents.parallel import from_arguments as executor_from_arguments
@@ -888,7 +889,9 @@ def _parser() -> argparse.ArgumentParser:
     parser.add_argument("--episodes", type=int, default=10, help="episodes per agent (default 10)")
     parser.add_argument("--seed", type=int, default=0, help="seed of the first episode (default 0)")
     parser.add_argument("--env", default="SeifExplore-v1", help="registered env id (default SeifExplore-v1)")
-    parser.add_argument("--env-kwargs", default="{}", help="JSON object of gym.make keyword arguments")
+    parser.add_argument(
+        "--env-kwargs", type=json_object, default="{}", help="JSON object of gym.make keyword arguments"
+    )
     parser.add_argument("--out", default="eval", help="output folder (default ./eval)")
     parser.add_argument("--bootstrap", type=int, default=0, metavar="N",
                         help="also a percentile bootstrap interval of the paired differences, N resamples (default 0: none)")  # fmt: skip
@@ -901,12 +904,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Command-line entry point; returns the exit status."""
     parser = _parser()
     args = parser.parse_args(argv)
-    try:
-        env_kwargs = json.loads(args.env_kwargs)
-    except json.JSONDecodeError as error:
-        raise SystemExit(f"--env-kwargs is not valid JSON: {error}") from None
-    if not isinstance(env_kwargs, dict):
-        raise SystemExit("--env-kwargs must be a JSON object")
+    env_kwargs = args.env_kwargs
     specs = [spec.strip() for spec in args.agents.split(",") if spec.strip()]
     if args.episodes < 1:
         parser.error(f"--episodes must be positive, got {args.episodes}")

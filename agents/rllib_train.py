@@ -58,6 +58,8 @@ from typing import Any
 
 import gymnasium as gym
 
+from agents.cli import json_object
+
 __all__ = [
     "PROGRESS_COLUMNS",
     "RLLIB_ENV_NAME",
@@ -502,7 +504,7 @@ def _parser() -> argparse.ArgumentParser:
         prog="python -m agents.rllib_train", description="Train PPO on a SeifExplore env with RLlib (new API stack)."
     )
     parser.add_argument("--env", default="SeifExplore-v1", help="registered env id (default SeifExplore-v1)")
-    parser.add_argument("--env-kwargs", default="{}", help="JSON object passed to gym.make")
+    parser.add_argument("--env-kwargs", type=json_object, default="{}", help="JSON object passed to gym.make")
     parser.add_argument("--timesteps", type=int, required=True, help="env steps to sample")
     parser.add_argument("--out", required=True, help="output directory (checkpoint, progress.csv, config.json)")
     parser.add_argument("--num-env-runners", type=int, default=1, help="remote env runners (0: sample in the driver)")
@@ -521,7 +523,9 @@ def _parser() -> argparse.ArgumentParser:
     parser.add_argument("--lr", type=float, default=3e-4)
     parser.add_argument("--gamma", type=float, default=0.995)
     parser.add_argument("--entropy-coeff", type=float, default=0.001)
-    parser.add_argument("--model-config", default="{}", help="JSON object: BeliefRLModule's model_config")
+    parser.add_argument(
+        "--model-config", type=json_object, default="{}", help="JSON object: BeliefRLModule's model_config"
+    )
     parser.add_argument("--checkpoint-every", type=int, default=10, help="iterations between checkpoints")
     parser.add_argument(
         "--torch-threads",
@@ -532,16 +536,6 @@ def _parser() -> argparse.ArgumentParser:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--quiet", action="store_true", help="print nothing")
     return parser
-
-
-def _json_object(text: str, option: str) -> dict[str, Any]:
-    try:
-        value = json.loads(text)
-    except json.JSONDecodeError as error:
-        raise SystemExit(f"{option} must be a JSON object: {error}") from None
-    if not isinstance(value, dict):
-        raise SystemExit(f"{option} must be a JSON object, got {text!r}")
-    return value
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -557,7 +551,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         torch_threads=args.torch_threads or None,
         quiet=args.quiet,
         argv=sys.argv if argv is None else list(argv),
-        env_kwargs=_json_object(args.env_kwargs, "--env-kwargs"),
+        env_kwargs=args.env_kwargs,
         num_env_runners=args.num_env_runners,
         num_envs_per_env_runner=args.num_envs_per_env_runner,
         vectorize=args.vectorize,
@@ -567,7 +561,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         lr=args.lr,
         gamma=args.gamma,
         entropy_coeff=args.entropy_coeff,
-        model_config=_json_object(args.model_config, "--model-config"),
+        model_config=args.model_config,
         seed=args.seed,
     )
     if not args.quiet:

@@ -42,7 +42,6 @@ from __future__ import annotations
 
 import argparse
 import csv
-import json
 import math
 import sys
 import time
@@ -55,6 +54,7 @@ import numpy as np
 
 import seif_gym  # noqa: F401  (registers the environments)
 from agents.baselines import BASELINES, Agent
+from agents.cli import json_object
 from agents.evaluate import (
     agent_labels,
     build_agent,
@@ -451,7 +451,9 @@ def _parser() -> argparse.ArgumentParser:
         "--filters", default=None, help=f"comma-separated filters (default {','.join(default_filters())})"
     )
     parser.add_argument("--env", default="SeifExplore-v0", help="registered env id (default SeifExplore-v0)")
-    parser.add_argument("--env-kwargs", default="{}", help="JSON object of further gym.make keyword arguments")
+    parser.add_argument(
+        "--env-kwargs", type=json_object, default="{}", help="JSON object of further gym.make keyword arguments"
+    )
     parser.add_argument("--nees-every", type=int, default=1, help="steps between full-covariance NEES (default 1)")
     parser.add_argument("--out", default="eval/robustness", help="output folder (default eval/robustness)")
     parser.add_argument("--no-save-episodes", action="store_true", help="do not save the recorded episodes")
@@ -478,12 +480,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Command-line entry point; returns the exit status."""
     parser = _parser()
     args = parser.parse_args(argv)
-    try:
-        env_kwargs = json.loads(args.env_kwargs)
-    except json.JSONDecodeError as error:
-        parser.error(f"--env-kwargs is not valid JSON: {error}")
-    if not isinstance(env_kwargs, dict):
-        parser.error("--env-kwargs must be a JSON object")
+    env_kwargs = args.env_kwargs
     if args.seeds < 1 or args.steps < 1 or args.nees_every < 1:
         parser.error("--seeds, --steps and --nees-every must be positive")
     layouts = _split(args.layouts)

@@ -44,6 +44,7 @@ import numpy as np
 from agents import BASELINES
 from agents.benchmark import HELD_OUT_SEED, VALIDATION_SEED
 from agents.checkpoints import vecnormalize_path
+from agents.cli import json_object
 from agents.evaluate import PAIRED_METRIC, evaluate_agents, write_outputs
 from agents.parallel import Executor
 from agents.parallel import add_arguments as add_executor_arguments
@@ -251,7 +252,9 @@ def _parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("runs", nargs="+", help="run folders (agents.train --out)")
     parser.add_argument("--env", required=True, help="the task to choose for (a registered env id)")
-    parser.add_argument("--env-kwargs", default="{}", help="JSON object of gym.make keyword arguments")
+    parser.add_argument(
+        "--env-kwargs", type=json_object, default="{}", help="JSON object of gym.make keyword arguments"
+    )
     parser.add_argument("--episodes", type=int, default=VALIDATION_EPISODES, help="validation episodes (default 100)")
     parser.add_argument(
         "--seed", type=int, default=VALIDATION_SEED, help=f"first validation seed (default {VALIDATION_SEED})"
@@ -269,12 +272,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Command-line entry point; returns the exit status."""
     parser = _parser()
     args = parser.parse_args(argv)
-    try:
-        env_kwargs = json.loads(args.env_kwargs)
-    except json.JSONDecodeError as error:
-        parser.error(f"--env-kwargs is not valid JSON: {error}")
-    if not isinstance(env_kwargs, dict):
-        parser.error("--env-kwargs must be a JSON object")
+    env_kwargs = args.env_kwargs
     baselines = [b.strip() for b in args.baselines.split(",") if b.strip()]
     executor = executor_from_arguments(args, parser)
     started = time.perf_counter()

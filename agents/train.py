@@ -79,6 +79,7 @@ import numpy as np
 import yaml
 
 import seif_gym  # noqa: F401  (registers the envs)
+from agents.cli import json_object
 from agents.hyperparams import HYPERPARAMS_DIR
 
 #: The algorithms of rl-zoo3 (``rl_zoo3.ALGOS``); configs ``agents/hyperparams/<algo>.yml`` exist for ``ppo``, ``ppo_lstm`` and ``sac``.
@@ -122,16 +123,6 @@ def _positive_or_off(text: str) -> int:
     return value
 
 
-def _json_object(text: str) -> dict[str, Any]:
-    try:
-        value = json.loads(text)
-    except json.JSONDecodeError as error:
-        raise argparse.ArgumentTypeError(f"not JSON: {error}") from error
-    if not isinstance(value, dict):
-        raise argparse.ArgumentTypeError(f"expected a JSON object, got {text!r}")
-    return value
-
-
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--algo", choices=ALGOS, default="ppo")
@@ -143,7 +134,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument(
         "--env-kwargs",
-        type=_json_object,
+        type=json_object,
         default=None,
         help='JSON object passed to gym.make (over the entry\'s env_kwargs), e.g. \'{"layout": "loop"}\'',
     )
@@ -229,7 +220,7 @@ def build_parser() -> argparse.ArgumentParser:
         "config's env_wrapper (e.g. agents.adversary:SeifVsEkfReward)",
     )
     parser.add_argument(
-        "--wrapper-kwargs", type=_json_object, default=None, help="JSON object of the wrapper's arguments"
+        "--wrapper-kwargs", type=json_object, default=None, help="JSON object of the wrapper's arguments"
     )
     parser.add_argument("--device", default="cpu", help="torch device (rl-zoo3's default is auto)")
     parser.add_argument("--quiet", action="store_true", help="print nothing: no progress bar, no log table")

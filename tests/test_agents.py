@@ -530,3 +530,25 @@ def test_showcase_verdict_comes_from_the_paired_interval() -> None:
     # a lower mean alone is not enough: revisit has a lower mean than frontier, but the interval holds 0
     summary["paired"] = evaluate.paired_comparison(rows, ["frontier"])  # frontier is the only baseline
     assert "does not beat" in verdict_sentence(summary, "revisit") and "holds 0" in verdict_sentence(summary, "revisit")
+
+
+def test_json_object_arguments_are_read_once_for_every_command_line(capsys):
+    import doctest
+
+    import agents.cli
+    from agents.evaluate import main as evaluate_main
+    from agents.robustness import main as robustness_main
+    from agents.select import main as select_main
+
+    assert doctest.testmod(agents.cli).failed == 0
+    for main, argv in (
+        (evaluate_main, ["--agents", "random"]),
+        (robustness_main, []),
+        (select_main, ["run", "--env", "SeifExplore-v1"]),
+    ):
+        for text, message in (("[1]", "expected a JSON object"), ("{oops", "not valid JSON")):
+            with pytest.raises(SystemExit) as exit_info:
+                main([*argv, "--env-kwargs", text])
+            assert exit_info.value.code == 2
+            error = capsys.readouterr().err
+            assert "--env-kwargs" in error and message in error, error

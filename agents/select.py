@@ -50,7 +50,7 @@ from agents.parallel import Executor
 from agents.parallel import add_arguments as add_executor_arguments
 from agents.parallel import from_arguments as executor_from_arguments
 
-__all__ = ["Candidate", "candidates", "main", "select_checkpoints"]
+__all__ = ["Candidate", "candidates", "main", "save_selected", "select_checkpoints", "selection_table"]
 
 #: Episodes of the held-out split (``HELD_OUT_SEED`` … ``HELD_OUT_SEED + HELD_OUT_EPISODES − 1``).
 HELD_OUT_EPISODES = 100
@@ -172,10 +172,12 @@ def select_checkpoints(
         folder twice, an unknown baseline or env id, seeds in the held-out range.
     """
     _check_seeds(seed, episodes)
-    if isinstance(env_id, str) and env_id.split(":")[-1] not in gym.registry:
+    if not isinstance(env_id, str):
+        raise TypeError(f"env_id must be a registered env id, got {type(env_id).__name__}")
+    if env_id.split(":")[-1] not in gym.registry:
         raise ValueError(f"env_id: unknown env {env_id!r}")
-    if isinstance(baselines, str) or not all(b in BASELINES for b in baselines):
-        raise ValueError(f"baselines must be names of {BASELINES}, got {baselines!r}")
+    if isinstance(baselines, str) or not baselines or not all(b in BASELINES for b in baselines):
+        raise ValueError(f"baselines must be one or more names of {BASELINES}, got {baselines!r}")
     per_run = {str(run): candidates(run) for run in runs}
     if len(per_run) != len(runs) or len({Path(r).resolve() for r in runs}) != len(runs):
         raise ValueError(f"runs: a folder is given twice: {[str(r) for r in runs]}")

@@ -108,6 +108,7 @@ def test_a_later_choice_without_statistics_removes_the_earlier_ones(run, tmp_pat
         ({"episodes": 0}, "episodes"),
         ({"seed": -1}, "seed"),
         ({"baselines": ("greedy",)}, "baselines"),
+        ({"baselines": ()}, "baselines"),
     ],
 )
 def test_bad_arguments_are_refused_before_any_episode(run, kwargs, match):
@@ -127,6 +128,8 @@ def test_runs_without_models_or_twice_or_unknown_env_are_refused(run, tmp_path):
         select_checkpoints([run, run], "SeifExplore-v1", TINY)
     with pytest.raises(ValueError, match="env_id"):
         select_checkpoints([run], "NoSuchEnv-v0", TINY)
+    with pytest.raises(TypeError, match="env_id"):
+        select_checkpoints([run], 3, TINY)  # type: ignore[arg-type]
     with pytest.raises(TypeError, match="run"):
         candidates(3)  # type: ignore[arg-type]
     with pytest.raises(SystemExit):

@@ -53,7 +53,9 @@ from agents.parallel import Executor
 from agents.time_feature import TimeLeftObservation, uses_time_left
 
 __all__ = [
+    "HELD_OUT_EPISODES",
     "HELD_OUT_SEED",
+    "VALIDATION_EPISODES",
     "VALIDATION_SEED",
     "LEADERBOARD_COLUMNS",
     "SHIPPED_POLICIES",
@@ -69,6 +71,8 @@ __all__ = [
 HELD_OUT_SEED = 1_000_000
 #: First validation seed of the protocol (checkpoint and hyperparameter selection).
 VALIDATION_SEED = 500_000
+#: Episodes of each split: held-out ``HELD_OUT_SEED`` … ``+ 99``, validation ``VALIDATION_SEED`` … ``+ 99``.
+HELD_OUT_EPISODES = VALIDATION_EPISODES = 100
 
 POLICY_DIR = Path(__file__).parent / "policies"
 
@@ -285,7 +289,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--variants", default="", help="comma-separated layouts or env ids (default: every layout)")
     parser.add_argument("--version", type=int, default=None, help="version of the layouts (default: the newest)")
-    parser.add_argument("--episodes", type=int, default=100, help="held-out episodes per agent and variant")
+    parser.add_argument(
+        "--episodes", type=int, default=HELD_OUT_EPISODES, help="held-out episodes per agent and variant"
+    )
     parser.add_argument("--seed", type=int, default=HELD_OUT_SEED, help="first held-out seed (default %(default)s)")
     parser.add_argument("--agents", default=",".join([*BASELINES, *SHIPPED_POLICIES]),
                         help="comma-separated baselines and shipped policies (default: all)")  # fmt: skip

@@ -146,6 +146,7 @@ __all__ = [
     "write_outputs",
     "markdown_table",
     "paired_table",
+    "signed",
     "main",
 ]
 
@@ -781,7 +782,8 @@ def markdown_table(summary: Mapping[str, Any]) -> str:
     return "\n".join(lines)
 
 
-def _signed(value: float | None, digits: int = 3) -> str:
+def signed(value: float | None, digits: int = 3) -> str:
+    """``value`` with its sign (``+0.012``), or ``n/a`` for ``None``."""
     return "n/a" if value is None else f"{value:+.{digits}f}"
 
 
@@ -808,11 +810,11 @@ def paired_table(summary: Mapping[str, Any], digits: int = 3) -> str:
     ]
     for label, entry in paired["agents"].items():
         interval = "n/a" if entry["ci95_low"] is None else (
-            f"[{_signed(entry['ci95_low'], digits)}, {_signed(entry['ci95_high'], digits)}]")  # fmt: skip
-        cells = [label, _signed(entry["mean"], digits), interval]
+            f"[{signed(entry['ci95_low'], digits)}, {signed(entry['ci95_high'], digits)}]")  # fmt: skip
+        cells = [label, signed(entry["mean"], digits), interval]
         if bootstrap:
             cells.append("n/a" if entry["bootstrap_ci95_low"] is None else
-                         f"[{_signed(entry['bootstrap_ci95_low'], digits)}, {_signed(entry['bootstrap_ci95_high'], digits)}]")  # fmt: skip
+                         f"[{signed(entry['bootstrap_ci95_low'], digits)}, {signed(entry['bootstrap_ci95_high'], digits)}]")  # fmt: skip
         verdict = entry["verdict"]
         cells.append(f"{verdict} {reference}" if verdict in ("beats",) else verdict)
         lines.append("| " + " | ".join(cells) + " |")
@@ -904,7 +906,6 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Command-line entry point; returns the exit status."""
     parser = _parser()
     args = parser.parse_args(argv)
-    env_kwargs = args.env_kwargs
     specs = [spec.strip() for spec in args.agents.split(",") if spec.strip()]
     if args.episodes < 1:
         parser.error(f"--episodes must be positive, got {args.episodes}")
@@ -917,7 +918,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         parser.error(str(error))
     executor = executor_from_arguments(args, parser)
     started = time.perf_counter()
-    rows, summary = evaluate_agents(specs, args.episodes, args.seed, args.env, env_kwargs, verbose=not args.quiet,
+    rows, summary = evaluate_agents(specs, args.episodes, args.seed, args.env, args.env_kwargs, verbose=not args.quiet,
                                     bootstrap=args.bootstrap, executor=executor)  # fmt: skip
     paths = write_outputs(rows, summary, args.out)
     print(f"{args.env}, {args.episodes} episodes per agent, seeds {args.seed}..{args.seed + args.episodes - 1}; "

@@ -480,7 +480,6 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Command-line entry point; returns the exit status."""
     parser = _parser()
     args = parser.parse_args(argv)
-    env_kwargs = args.env_kwargs
     if args.seeds < 1 or args.steps < 1 or args.nees_every < 1:
         parser.error("--seeds, --steps and --nees-every must be positive")
     layouts = _split(args.layouts)
@@ -515,7 +514,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     started = time.perf_counter()
     rows, series = evaluate(
         policies, layouts, seeds, args.steps, specs,
-        env_id=args.env, env_kwargs=env_kwargs, nees_every=args.nees_every,
+        env_id=args.env, env_kwargs=args.env_kwargs, nees_every=args.nees_every,
         episode_dir=None if args.no_save_episodes else out / "episodes", verbose=not args.quiet, executor=executor,
     )  # fmt: skip
     wall = time.perf_counter() - started
@@ -523,7 +522,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         "argv": list(sys.argv[1:] if argv is None else argv),
         "policies": policies, "layouts": layouts, "seeds": seeds, "steps": args.steps,
         "filters": [{"label": s.label, "filter": s.filter, "options": dict(s.options)} for s in specs],
-        "env": args.env, "env_kwargs": env_kwargs, "nees_every": args.nees_every, "wall_seconds": wall,
+        "env": args.env, "env_kwargs": args.env_kwargs, "nees_every": args.nees_every, "wall_seconds": wall,
         "executor": executor.describe(),
     }  # fmt: skip
     paths = write_outputs(rows, series, out, config)

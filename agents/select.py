@@ -42,20 +42,15 @@ import gymnasium as gym
 import numpy as np
 
 from agents import BASELINES
-from agents.benchmark import HELD_OUT_SEED, VALIDATION_SEED
+from agents.benchmark import HELD_OUT_EPISODES, HELD_OUT_SEED, VALIDATION_EPISODES, VALIDATION_SEED
 from agents.checkpoints import vecnormalize_path
 from agents.cli import json_object
-from agents.evaluate import PAIRED_METRIC, evaluate_agents, write_outputs
+from agents.evaluate import PAIRED_METRIC, evaluate_agents, signed, write_outputs
 from agents.parallel import Executor
 from agents.parallel import add_arguments as add_executor_arguments
 from agents.parallel import from_arguments as executor_from_arguments
 
 __all__ = ["Candidate", "candidates", "main", "save_selected", "select_checkpoints", "selection_table"]
-
-#: Episodes of the held-out split (``HELD_OUT_SEED`` … ``HELD_OUT_SEED + HELD_OUT_EPISODES − 1``).
-HELD_OUT_EPISODES = 100
-#: Episodes of the validation split.
-VALIDATION_EPISODES = 100
 
 _CHECKPOINT = re.compile(r"rl_model_(?P<steps>\d+)_steps\.zip")
 
@@ -179,7 +174,7 @@ def select_checkpoints(
     if isinstance(baselines, str) or not baselines or not all(b in BASELINES for b in baselines):
         raise ValueError(f"baselines must be one or more names of {BASELINES}, got {baselines!r}")
     per_run = {str(run): candidates(run) for run in runs}
-    if len(per_run) != len(runs) or len({Path(r).resolve() for r in runs}) != len(runs):
+    if len({Path(r).resolve() for r in runs}) != len(runs):
         raise ValueError(f"runs: a folder is given twice: {[str(r) for r in runs]}")
     labels = [c.label for found in per_run.values() for c in found]
     if len(set(labels)) != len(labels):
@@ -206,23 +201,25 @@ def select_checkpoints(
 
 
 def save_selected(run: str | Path, choice: Mapping[str, Any], provenance: Mapping[str, Any]) -> Path:
-    """Copy the chosen model (and its statistics) to ``run/selected/`` with ``selection.json``; returns the model."""
+    """Copy the chosen model (and its statistics) to ``run/selected/`` with ``selection.json``; returns the model.
+
+    The folder is written whole beside the old one and then put in its place, so a failure
+    midway leaves the earlier choice as it was, and no file of it survives a new choice.
+    """
     folder = Path(run) / "selected"
-    folder.mkdir(exist_ok=True)
+    partial = Path(run) / ".selected.partial"
+    shutil.rmtree(partial, ignore_errors=True)
+    partial.mkdir()
     source = Path(choice["path"])
-    model = folder / "model.zip"
-    shutil.copyfile(source, model)
+    shutil.copyfile(source, partial / "model.zip")
     stats = vecnormalize_path(source)
-    (folder / "vecnormalize.pkl").unlink(missing_ok=True)  # never keep statistics of an earlier choice
     if stats is not None:
-        shutil.copyfile(stats, folder / "vecnormalize.pkl")
+        shutil.copyfile(stats, partial / "vecnormalize.pkl")
     record = {**provenance, **choice, "statistics": None if stats is None else str(stats)}
-    (folder / "selection.json").write_text(json.dumps(record, indent=2, allow_nan=False) + "\n")
-    return model
-
-
-def _signed(value: float | None) -> str:
-    return "—" if value is None else f"{value:+.3f}"
+    (partial / "selection.json").write_text(json.dumps(record, indent=2, allow_nan=False) + "\n")
+    shutil.rmtree(folder, ignore_errors=True)
+    partial.rename(folder)
+    return folder / "model.zip"
 
 
 def selection_table(selection: Mapping[str, Mapping[str, Any]], summary: Mapping[str, Any]) -> str:
@@ -241,7 +238,7 @@ def selection_table(selection: Mapping[str, Mapping[str, Any]], summary: Mapping
         for label, mean in choice["candidates"].items():
             p = paired["agents"][label]
             mark = " (chosen)" if label == choice["chosen"] else ""
-            interval = f"{_signed(p['mean'])} [{_signed(p['ci95_low'])}, {_signed(p['ci95_high'])}]"
+            interval = f"{signed(p['mean'])} [{signed(p['ci95_low'])}, {signed(p['ci95_high'])}]"
             lines.append(f"| {label}{mark} | {mean:.3f} | {interval} | {p['verdict']} |")
         lines.append("")
     return "\n".join(lines)
@@ -274,13 +271,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Command-line entry point; returns the exit status."""
     parser = _parser()
     args = parser.parse_args(argv)
-    env_kwargs = args.env_kwargs
     baselines = [b.strip() for b in args.baselines.split(",") if b.strip()]
     executor = executor_from_arguments(args, parser)
     started = time.perf_counter()
     try:
         selection, rows, summary = select_checkpoints(
-            args.runs, args.env, env_kwargs, episodes=args.episodes, seed=args.seed, baselines=baselines,
+            args.runs, args.env, args.env_kwargs, episodes=args.episodes, seed=args.seed, baselines=baselines,
             executor=executor, verbose=not args.quiet,
         )  # fmt: skip
     except (TypeError, ValueError) as error:
@@ -288,7 +284,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     write_outputs(rows, summary, args.out)
     table = selection_table(selection, summary)
     Path(args.out, "selection.md").write_text(table + "\n")
-    provenance = {"env_id": args.env, "env_kwargs": env_kwargs, "seeds": [args.seed, args.seed + args.episodes - 1]}
+    provenance = {
+        "env_id": args.env,
+        "env_kwargs": args.env_kwargs,
+        "seeds": [args.seed, args.seed + args.episodes - 1],
+    }
     print(f"{args.env}, validation seeds {args.seed}..{args.seed + args.episodes - 1}\n\n{table}")
     for run, choice in selection.items():
         print(f"{run}: chose {choice['chosen']} -> {save_selected(run, choice, provenance)}")

@@ -331,6 +331,10 @@ def _experiment_class() -> type:
             # the log rl-zoo3's Monitor would write, in the run's folder (agents.callbacks.run_folder reads it)
             log = None if eval_env or no_log else os.path.join(self.save_path, "monitor.csv")
             env = VecMonitor(env, filename=log, info_keywords=tuple(self.monitor_kwargs.get("info_keywords", ())))
+            return self._wrap_vector_env(env, eval_env)
+
+        def _wrap_vector_env(self, env: VecEnv, eval_env: bool) -> VecEnv:
+            """The config's vector-env wrapper, normalisation and frame stack, as rl-zoo3 applies them."""
             if self.vec_env_wrapper is not None:
                 env = self.vec_env_wrapper(env)
             env = self._maybe_normalize(env, eval_env)
@@ -368,12 +372,7 @@ def _experiment_class() -> type:
 
             env: VecEnv = self.vec_env_class([make(rank) for rank in range(n_envs)], **vec_env_kwargs)
             env.seed(seed)
-            if self.vec_env_wrapper is not None:
-                env = self.vec_env_wrapper(env)
-            env = self._maybe_normalize(env, False)
-            if self.frame_stack is not None:
-                env = VecFrameStack(env, self.frame_stack)
-            return env
+            return self._wrap_vector_env(env, eval_env=False)
 
         # -- callbacks -------------------------------------------------------------------------------
         def create_callbacks(self) -> None:

@@ -13,7 +13,7 @@ import torch
 import seif_gym  # noqa: F401
 from agents.benchmark import HELD_OUT_SEED
 from agents.checkpoints import save_with_vecnormalize, vecnormalize_path
-from agents.select import candidates, main, select_checkpoints
+from agents.select import candidates, main, save_selected, select_checkpoints
 
 TINY = {"num_landmarks": 10, "max_episode_steps": 20}
 
@@ -98,6 +98,28 @@ def test_a_later_choice_without_statistics_removes_the_earlier_ones(run, tmp_pat
     assert main([*argv, "--seed", "3", "--out", str(tmp_path / "sel"), "--quiet"]) == 0
     assert json.loads((selected / "selection.json").read_text())["chosen"] == "run_a:final"
     assert not (selected / "vecnormalize.pkl").exists()
+
+
+def test_a_choice_that_fails_midway_leaves_the_earlier_one_as_it_was(run, monkeypatch):
+    import shutil
+
+    import agents.select
+
+    first = {"chosen": "run_a:100", "path": str(run / "rl_model_100_steps.zip"), "steps": 100}
+    save_selected(run, first, {"env_id": "SeifExplore-v1"})
+    before = {p.name: p.read_bytes() for p in (run / "selected").iterdir()}
+    copy = shutil.copyfile
+
+    def failing_copy(source, target):
+        if str(source).endswith(".pkl"):
+            raise OSError("disk full")
+        return copy(source, target)
+
+    monkeypatch.setattr(agents.select.shutil, "copyfile", failing_copy)
+    second = {"chosen": "run_a:300", "path": str(run / "rl_model_300_steps.zip"), "steps": 300}
+    with pytest.raises(OSError, match="disk full"):
+        save_selected(run, second, {"env_id": "SeifExplore-v1"})
+    assert {p.name: p.read_bytes() for p in (run / "selected").iterdir()} == before
 
 
 @pytest.mark.parametrize(

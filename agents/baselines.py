@@ -51,7 +51,7 @@ reads as floats in ``[0, 1]``. Cell ``(i, j)`` has its centre
 >>> import gymnasium as gym
 >>> import seif_gym
 >>> from agents import make_agent
->>> env = gym.make("SeifExplore-v1", max_episode_steps=5)
+>>> env = gym.make("SeifExplore-v2", max_episode_steps=5)
 >>> agent = make_agent("frontier", env)
 >>> obs, info = env.reset(seed=0)
 >>> action, state = agent.predict(obs, episode_start=True)

@@ -3,7 +3,7 @@ r"""Compare agents on the same seeds: ``python -m agents.evaluate``.
 .. code-block:: bash
 
     python -m agents.evaluate --agents random,frontier,revisit,info_gain,runs/ppo/model.zip \
-        --episodes 10 --seed 1000 [--env SeifExplore-v1] [--env-kwargs '{"layout": "loop"}'] [--out DIR] \
+        --episodes 10 --seed 1000 [--env SeifExplore-v2] [--env-kwargs '{"layout": "loop"}'] [--out DIR] \
         [--bootstrap 10000] [--workers N | --ray auto|ADDRESS] [--quiet]
 
 Every agent runs ``N`` episodes on the seeds ``S, S+1, …, S+N−1`` (the same
@@ -115,6 +115,7 @@ from agents.parallel import Executor, chunks
 from agents.parallel import add_arguments as add_executor_arguments
 from agents.parallel import from_arguments as executor_from_arguments
 from agents.time_feature import TimeLeftClock, TimeLeftObservation, episode_limit, uses_time_left
+from seif_gym import LATEST_ID
 from seif_gym.progress import Progress
 
 if TYPE_CHECKING:
@@ -654,7 +655,7 @@ def evaluate_agents(
     agent_specs: Sequence[str],
     episodes: int,
     seed: int,
-    env_id: str = "SeifExplore-v1",
+    env_id: str = LATEST_ID,
     env_kwargs: Mapping[str, Any] | None = None,
     *,
     verbose: bool = False,
@@ -890,7 +891,7 @@ def _parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--episodes", type=int, default=10, help="episodes per agent (default 10)")
     parser.add_argument("--seed", type=int, default=0, help="seed of the first episode (default 0)")
-    parser.add_argument("--env", default="SeifExplore-v1", help="registered env id (default SeifExplore-v1)")
+    parser.add_argument("--env", default=LATEST_ID, help="registered env id (default %(default)s)")
     parser.add_argument(
         "--env-kwargs", type=json_object, default="{}", help="JSON object of gym.make keyword arguments"
     )

@@ -32,7 +32,7 @@ it with the baselines.
 
 >>> import gymnasium as gym, seif_gym  # doctest: +SKIP
 >>> agent = RLlibAgent("runs/rllib/checkpoint")  # doctest: +SKIP
->>> env = gym.make("SeifExplore-v1")  # doctest: +SKIP
+>>> env = gym.make("SeifExplore-v2")  # doctest: +SKIP
 >>> obs, _ = env.reset(seed=0)  # doctest: +SKIP
 >>> action, _ = agent.predict(obs, deterministic=True)  # doctest: +SKIP
 """

@@ -2,7 +2,7 @@ r"""Train PPO on ``SeifExplore`` with RLlib (new API stack): ``python -m agents.
 
 .. code-block:: bash
 
-    python -m agents.rllib_train --env SeifExplore-v1 --timesteps 200000 --out runs/rllib \
+    python -m agents.rllib_train --env SeifExplore-v2 --timesteps 200000 --out runs/rllib \
         [--num-env-runners 2] [--num-envs-per-env-runner 8] [--address auto|HOST:PORT] [--seed 0] [--quiet]
 
 Needs the optional ``ray`` extra (``pip install -e ".[train,ray]"``).
@@ -59,6 +59,7 @@ from typing import Any
 import gymnasium as gym
 
 from agents.cli import json_object
+from seif_gym import LATEST_ID
 
 __all__ = [
     "PROGRESS_COLUMNS",
@@ -131,7 +132,7 @@ def make_env(config: Mapping[str, Any]) -> gym.Env | gym.vector.VectorEnv:
 
 # -- the algorithm -------------------------------------------------------------------------------------
 def build_config(
-    env_id: str = "SeifExplore-v1",
+    env_id: str = LATEST_ID,
     *,
     env_kwargs: Mapping[str, Any] | None = None,
     num_env_runners: int = 1,
@@ -356,7 +357,7 @@ def _init_ray(address: str | None, num_cpus: int | None, quiet: bool) -> bool:
 
 
 def train(
-    env_id: str = "SeifExplore-v1",
+    env_id: str = LATEST_ID,
     *,
     timesteps: int,
     out: str | os.PathLike,
@@ -503,7 +504,7 @@ def _parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="python -m agents.rllib_train", description="Train PPO on a SeifExplore env with RLlib (new API stack)."
     )
-    parser.add_argument("--env", default="SeifExplore-v1", help="registered env id (default SeifExplore-v1)")
+    parser.add_argument("--env", default=LATEST_ID, help="registered env id (default %(default)s)")
     parser.add_argument("--env-kwargs", type=json_object, default="{}", help="JSON object passed to gym.make")
     parser.add_argument("--timesteps", type=int, required=True, help="env steps to sample")
     parser.add_argument("--out", required=True, help="output directory (checkpoint, progress.csv, config.json)")

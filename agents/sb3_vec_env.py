@@ -9,7 +9,7 @@ turns its batched infos into SB3's list of per-env dicts, with
 
 >>> import seif_gym
 >>> from agents.sb3_vec_env import NativeVecEnv
->>> venv = NativeVecEnv("SeifExplore-v1", num_envs=4, seed=0)
+>>> venv = NativeVecEnv("SeifExplore-v2", num_envs=4, seed=0)
 >>> obs = venv.reset()
 >>> obs["belief_map"].shape
 (4, 3, 40, 40)

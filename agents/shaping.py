@@ -18,7 +18,7 @@ env's. Evaluation (``python -m agents.evaluate``) always runs unwrapped envs.
 >>> import gymnasium as gym
 >>> import seif_gym
 >>> from agents.shaping import CoverageShaping
->>> env = CoverageShaping(gym.make("SeifExplore-v1", max_episode_steps=3), coef=1.0)
+>>> env = CoverageShaping(gym.make("SeifExplore-v2", max_episode_steps=3), coef=1.0)
 >>> _, info = env.reset(seed=0)
 >>> _, reward, _, _, info = env.step(env.action_space.sample())
 >>> 0.0 < info["swept_fraction"] < 1.0

@@ -3,7 +3,7 @@ r"""Train an exploration policy on a SeifExplore env: rl-zoo3's ``ExperimentMana
 Usage::
 
     python -m agents.train --env SeifExplore-v0 --seed 8                    # the shipped policy's recipe
-    python -m agents.train --env SeifExplore-v1 --timesteps 200000 --out runs/ppo_v1
+    python -m agents.train --env SeifExplore-v2 --timesteps 200000 --out runs/ppo_v2
     python -m agents.train --env SeifExplore-v0 --init-from runs/ppo_v1/best_map_error/model.zip \\
         --hyperparams learning_rate=1e-4 --timesteps 250000
 
@@ -81,6 +81,7 @@ import yaml
 import seif_gym  # noqa: F401  (registers the envs)
 from agents.cli import json_object
 from agents.hyperparams import HYPERPARAMS_DIR
+from seif_gym import LATEST_ID
 
 #: The algorithms of rl-zoo3 (``rl_zoo3.ALGOS``); configs ``agents/hyperparams/<algo>.yml`` exist for ``ppo``, ``ppo_lstm`` and ``sac``.
 ALGOS = ("a2c", "ddpg", "dqn", "ppo", "sac", "td3", "ars", "crossq", "qrdqn", "tqc", "trpo", "ppo_lstm")
@@ -126,7 +127,7 @@ def _positive_or_off(text: str) -> int:
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--algo", choices=ALGOS, default="ppo")
-    parser.add_argument("--env", default="SeifExplore-v1", help="a registered env id")
+    parser.add_argument("--env", default=LATEST_ID, help="a registered env id (default %(default)s)")
     parser.add_argument(
         "--conf-file",
         default=None,

@@ -2,9 +2,9 @@
 
 .. code-block:: bash
 
-    python -m agents.zoo train --algo ppo --env SeifExplore-v1 -n 100000 --eval-freq -1
-    python -m agents.zoo enjoy --algo ppo --env SeifExplore-v1 -f logs --no-render -n 400
-    python -m agents.zoo record_video --algo ppo --env SeifExplore-v1 -f logs -n 400
+    python -m agents.zoo train --algo ppo --env SeifExplore-v2 -n 100000 --eval-freq -1
+    python -m agents.zoo enjoy --algo ppo --env SeifExplore-v2 -f logs --no-render -n 400
+    python -m agents.zoo record_video --algo ppo --env SeifExplore-v2 -f logs -n 400
 
 ``rl_zoo3.train`` and ``rl_zoo3.enjoy`` take ``--gym-packages seif_gym``,
 and need nothing from here. ``rl_zoo3.record_video`` (2.9) has no such option

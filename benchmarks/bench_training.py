@@ -2,7 +2,7 @@
 
 Usage::
 
-    python benchmarks/bench_training.py [--env SeifExplore-v1] [--timesteps 16384] [--n-envs 8]
+    python benchmarks/bench_training.py [--env SeifExplore-v2] [--timesteps 16384] [--n-envs 8]
 
 Runs ``python -m agents.train`` with the shipped hyperparameters
 (``agents/hyperparams/ppo.yml``: 512 steps per env per rollout, 5 epochs of
@@ -23,6 +23,8 @@ import sys
 import tempfile
 from pathlib import Path
 
+from seif_gym import LATEST_ID
+
 VEC_ENVS = ("native", "dummy", "subproc")
 
 
@@ -41,7 +43,7 @@ def run(env_id: str, vec_env: str, timesteps: int, n_envs: int, folder: Path) ->
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--env", default="SeifExplore-v1")
+    parser.add_argument("--env", default=LATEST_ID)
     parser.add_argument("--timesteps", type=int, default=16384)
     parser.add_argument("--n-envs", type=int, default=8)
     parser.add_argument("--vec-envs", default=",".join(VEC_ENVS), help="comma-separated, of " + ", ".join(VEC_ENVS))

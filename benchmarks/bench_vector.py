@@ -2,7 +2,7 @@
 
 Usage::
 
-    python benchmarks/bench_vector.py [--env SeifExplore-v1] [--env-kwargs JSON] [--sizes 1,16,64,256]
+    python benchmarks/bench_vector.py [--env SeifExplore-v2] [--env-kwargs JSON] [--sizes 1,16,64,256]
         [--seconds 3] [--repeats 3]
 
 All in one process, random actions (each vector env's own seeded action
@@ -44,6 +44,7 @@ import numba  # noqa: E402
 import numpy as np  # noqa: E402
 
 import seif_gym  # noqa: E402,F401
+from seif_gym import LATEST_ID  # noqa: E402
 from seif_gym.envs import vector as vector_module  # noqa: E402
 
 
@@ -113,7 +114,7 @@ def stage_times(env_id: str, n: int, kwargs: dict, seconds: float) -> dict[str, 
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--env", default="SeifExplore-v1")
+    parser.add_argument("--env", default=LATEST_ID)
     parser.add_argument(
         "--env-kwargs", default="{}", help='keyword arguments of every env, JSON (e.g. \'{"filter": "eseif"}\')'
     )

@@ -2,7 +2,7 @@
 
 Usage::
 
-    python benchmarks/rllib_sampling.py --env SeifExplore-v1 --runners 1,2 --envs-per-runner 8 \\
+    python benchmarks/rllib_sampling.py --env SeifExplore-v2 --runners 1,2 --envs-per-runner 8 \\
         --steps 4096 --repeats 3 [--vectorize native,sync] [--address auto]
 
 For each number of remote env runners (and each ``--vectorize`` mode) the
@@ -34,6 +34,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import numpy as np
 
+from seif_gym import LATEST_ID
+
 
 def _sample(algo: Any, steps: int) -> Any:
     """One round of parallel sampling from all env runners, as a PPO iteration does it."""
@@ -53,7 +55,7 @@ def _env_steps(episodes: Any) -> int:
 
 def _parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--env", default="SeifExplore-v1")
+    parser.add_argument("--env", default=LATEST_ID)
     parser.add_argument("--runners", default="1,2", help="comma-separated numbers of remote env runners")
     parser.add_argument("--envs-per-runner", type=int, default=8)
     parser.add_argument("--vectorize", default="native", help="comma-separated: native, sync")

@@ -82,6 +82,8 @@ VERSIONS: dict[int, dict] = {
 
 #: The newest version, what ``SeifExploreEnv()`` builds with its defaults.
 LATEST_VERSION = max(VERSIONS)
+#: The default task at the newest version: what the command-line tools run when no ``--env`` is given.
+LATEST_ID = f"SeifExplore-v{LATEST_VERSION}"
 
 #: id -> (kwargs, max_episode_steps) of every registered variant, every version.
 VARIANTS: dict[str, tuple[dict, int]] = {
@@ -115,6 +117,7 @@ __all__ = [
     "VERSIONED_VARIANTS",
     "VERSIONS",
     "LATEST_VERSION",
+    "LATEST_ID",
     "ENTRY_POINT",
     "VECTOR_ENTRY_POINT",
     "MRCLAM_ID",

@@ -17,7 +17,7 @@ for bit.
 >>> import numpy as np
 >>> import seif_gym
 >>> from seif_gym.episodes import Episode, EpisodeRecorder, replay
->>> env = EpisodeRecorder(gym.make("SeifExplore-v1", max_episode_steps=10))
+>>> env = EpisodeRecorder(gym.make("SeifExplore-v2", max_episode_steps=10))
 >>> _ = env.reset(seed=3)
 >>> _ = env.action_space.seed(3)
 >>> done = False

@@ -205,7 +205,7 @@ class Calibration:
         >>> import gymnasium as gym, seif_gym
         >>> from seif_gym.datasets.mrclam_calibration import Calibration
         >>> kwargs = Calibration.load("seif_gym/datasets/mrclam6_calibration.json").env_kwargs()  # doctest: +SKIP
-        >>> env = gym.make("SeifExplore-v1", **kwargs)  # doctest: +SKIP
+        >>> env = gym.make("SeifExplore-v2", **kwargs)  # doctest: +SKIP
         """
         return {
             "motion_model": "per_second",

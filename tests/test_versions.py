@@ -138,6 +138,18 @@ def test_latest_version_is_the_env_default():
         assert defaults[name] == value, name
 
 
+def test_latest_id_is_the_newest_version_and_current():
+    # the tools' default task: gymnasium warns about every id older than its newest version, never about this one
+    assert seif_gym.LATEST_ID == f"SeifExplore-v{seif_gym.LATEST_VERSION}"
+    assert seif_gym.VARIANTS[seif_gym.LATEST_ID][0].items() >= seif_gym.VERSIONS[seif_gym.LATEST_VERSION].items()
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        gym.make(seif_gym.LATEST_ID).close()
+        gym.make(f"SeifExplore-v{seif_gym.LATEST_VERSION - 1}").close()
+    out_of_date = [str(w.message) for w in caught if "out of date" in str(w.message)]
+    assert len(out_of_date) == 1 and f"SeifExplore-v{seif_gym.LATEST_VERSION - 1}" in out_of_date[0], out_of_date
+
+
 def test_v1_recovery_differs_from_v0():
     """The versions compute different beliefs from the same data (the mean recovery changed)."""
     with warnings.catch_warnings():

@@ -38,6 +38,7 @@ import gymnasium as gym
 import numpy as np
 from stable_baselines3.common.callbacks import BaseCallback
 
+from agents.benchmark import VALIDATION_SEED
 from agents.checkpoints import save_with_vecnormalize
 from agents.time_feature import TimeLeftClock, episode_limit, uses_time_left
 
@@ -228,7 +229,7 @@ class MapErrorEvalCallback(BaseCallback):
         self,
         eval_freq: int = 50_000,
         n_episodes: int = 10,
-        first_seed: int = 500_000,
+        first_seed: int = VALIDATION_SEED,
         save_path: str | os.PathLike | None = None,
         env_id: str | None = None,
         env_kwargs: Mapping[str, Any] | None = None,

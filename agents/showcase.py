@@ -32,14 +32,13 @@ import gymnasium as gym
 
 import seif_gym  # noqa: F401  (registers the envs)
 from agents import BASELINES
+from agents.benchmark import HELD_OUT_EPISODES, HELD_OUT_SEED
 from agents.evaluate import SB3Agent, evaluate_agents, markdown_table, paired_table, write_outputs
 from seif_gym.progress import Progress
 
 SHIPPED_POLICY = Path(__file__).parent / "policies" / "ppo_seif_explore.zip"
 #: The env the main job evaluates on: the newest version (the shipped policy was trained on ``SeifExplore-v0``).
 ENV_ID = "SeifExplore-v2"
-#: First held-out seed: far from the seeds training and its evaluation callback draw.
-HELD_OUT_SEED = 1_000_000
 
 
 def record_gif(policy_path: Path, path: Path, seed: int, every: int = 4, size: int = 400, env_id: str = ENV_ID,
@@ -95,7 +94,7 @@ def verdict_sentence(summary: Mapping[str, Any], label: str) -> str:
 
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--episodes", type=int, default=100)
+    parser.add_argument("--episodes", type=int, default=HELD_OUT_EPISODES)
     parser.add_argument("--seed", type=int, default=HELD_OUT_SEED)
     parser.add_argument("--policy", default=str(SHIPPED_POLICY), help="SB3 .zip of the policy to show")
     parser.add_argument("--env", default=ENV_ID, help="registered env id (default %(default)s)")

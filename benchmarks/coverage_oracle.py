@@ -1,0 +1,110 @@
+"""How far each task's final map error is from what coverage alone allows: a cheating explorer as a yardstick.
+
+Usage::
+
+    python benchmarks/coverage_oracle.py [--env SeifExploreClusteredBudget-v2 ...] [--episodes 100] [--seed 500000]
+
+The *coverage oracle* reads what no agent may read (the true landmarks and
+the true pose, ``env.unwrapped.world``) and drives greedily to the unmapped
+landmark that is nearest counting one metre per radian of turn, until the
+filter has mapped every landmark (the registered ids' known association: the
+filter's ids are the true ones). It plans no revisits and no loop closures, so
+its final map error is a bound on what exploring for coverage can give, not on
+what a policy can reach: where a learned policy beats it, it does so by
+accuracy (closing loops, revisiting), where it trails it by far, a better
+explorer could exist. It is a diagnostic for the benchmark's tasks
+(docs/benchmark.md, "Tasks"), never an agent of the leaderboard.
+
+Prints, per task, the oracle's mean final map error with its 95% Student-t
+interval and the landmarks it mapped, on the validation seeds by default.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+from collections.abc import Sequence
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+
+import seif_gym  # noqa: F401  (registers the envs)
+from agents.benchmark import VALIDATION_SEED
+from agents.evaluate import mean_ci
+
+#: Metres of path one radian of turn is worth when the oracle picks its next landmark.
+TURN_COST = 1.0
+#: Steering gain: the turn-rate action per radian of heading error (clipped to the action's bound).
+STEERING_GAIN = 2.0
+
+
+def oracle_action(pose: np.ndarray, landmarks: np.ndarray, mapped: set[int]) -> np.ndarray:
+    """The oracle's action: full speed towards the cheapest unmapped landmark, slower while it turns.
+
+    Parameters
+    ----------
+    pose : ndarray, shape (3,)
+        The true pose ``(x, y, θ)``.
+    landmarks : ndarray, shape (n, 2)
+        The true landmark positions; landmark ``i`` has id ``i``.
+    mapped : set of int
+        The ids the filter has mapped.
+
+    Returns
+    -------
+    ndarray, shape (2,)
+        ``(v, ω)`` in the env's action units; ``(0, 0)`` once every landmark is mapped.
+    """
+    todo = np.array([i for i in range(len(landmarks)) if i not in mapped], dtype=np.int64)
+    if todo.size == 0:
+        return np.zeros(2, dtype=np.float32)
+    dx, dy = landmarks[todo, 0] - pose[0], landmarks[todo, 1] - pose[1]
+    heading_error = (np.arctan2(dy, dx) - pose[2] + math.pi) % (2 * math.pi) - math.pi
+    k = int(np.argmin(np.hypot(dx, dy) + TURN_COST * np.abs(heading_error)))
+    speed = 1.0 if abs(heading_error[k]) < 1.2 else 0.3
+    turn = float(np.clip(STEERING_GAIN * heading_error[k], -1.0, 1.0))
+    return np.array([speed, turn], dtype=np.float32)
+
+
+def run_oracle(env_id: str, seeds: Sequence[int]) -> dict[str, Any]:
+    """The oracle's episodes on ``seeds`` of ``env_id``: final map errors (mean, interval) and landmarks mapped."""
+    env = gym.make(env_id)
+    base = env.unwrapped
+    errors, mapped = [], []
+    try:
+        for seed in seeds:
+            _, info = env.reset(seed=int(seed))
+            while True:
+                world = base.world  # type: ignore[attr-defined]
+                ids = {int(i) for i in base.filter.landmark_ids}  # type: ignore[attr-defined]
+                _, _, terminated, truncated, info = env.step(oracle_action(world.pose, world.landmarks, ids))
+                if terminated or truncated:
+                    break
+            errors.append(float(info["map_error"]))
+            mapped.append(int(info["landmarks_mapped"]))
+    finally:
+        env.close()
+    return {"env_id": env_id, "final_map_error": mean_ci(errors), "landmarks_mapped": float(np.mean(mapped))}
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=(__doc__ or "").split("\n\n")[0])
+    parser.add_argument("--env", nargs="+", default=["SeifExploreClusteredBudget-v2"], help="registered env ids")
+    parser.add_argument("--episodes", type=int, default=100, help="episodes per task (default %(default)s)")
+    parser.add_argument("--seed", type=int, default=VALIDATION_SEED, help="first seed (default %(default)s)")
+    args = parser.parse_args(argv)
+    if args.episodes < 2:
+        parser.error(f"--episodes: at least 2 for an interval, got {args.episodes}")
+    print(f"coverage oracle, seeds {args.seed}..{args.seed + args.episodes - 1}")
+    print("| task | final map error (m), 95% interval | landmarks mapped |")
+    print("|---|--:|--:|")
+    for env_id in args.env:
+        result = run_oracle(env_id, range(args.seed, args.seed + args.episodes))
+        stat = result["final_map_error"]
+        print(f"| `{env_id}` | {stat['mean']:.3f} ± {stat['ci95_half_width']:.3f} | {result['landmarks_mapped']:.1f} |")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -83,6 +83,7 @@ from seif_gym.observation import (
     landmark_rows,
     read_belief_map,
 )
+from seif_gym.slam.models import wrap_angle
 from seif_gym.type_aliases import FloatArray
 
 __all__ = [
@@ -219,10 +220,6 @@ def _unwrapped(env: Any | None) -> Any | None:
 
 def _heading(pose: np.ndarray) -> float:
     return math.atan2(float(pose[3]), float(pose[2]))
-
-
-def _wrap(angle: float) -> float:
-    return (angle + math.pi) % (2.0 * math.pi) - math.pi
 
 
 # -- the interface ---------------------------------------------------------------------------------
@@ -543,7 +540,7 @@ class FrontierAgent(Agent):
         gx, gy = np.meshgrid(centres, centres, indexing="ij")
         dx, dy = gx - float(pose[0]), gy - float(pose[1])
         theta = _heading(pose)
-        bearing = np.abs(np.vectorize(_wrap)(np.arctan2(dy, dx) - theta))
+        bearing = np.abs(wrap_angle(np.arctan2(dy, dx) - theta))
         cost = np.hypot(dx, dy) * self.geometry.half + self.turn_cost * bearing
         cost[memory.visited] = np.inf
         i, j = np.unravel_index(int(np.argmin(cost)), cost.shape)

@@ -22,7 +22,6 @@ interval and the landmarks it mapped, on the validation seeds by default.
 from __future__ import annotations
 
 import argparse
-import math
 from collections.abc import Sequence
 from typing import Any
 
@@ -32,6 +31,7 @@ import numpy as np
 import seif_gym  # noqa: F401  (registers the envs)
 from agents.benchmark import VALIDATION_SEED
 from agents.evaluate import mean_ci
+from seif_gym.slam import wrap_angle
 
 #: Metres of path one radian of turn is worth when the oracle picks its next landmark.
 TURN_COST = 1.0
@@ -60,7 +60,7 @@ def oracle_action(pose: np.ndarray, landmarks: np.ndarray, mapped: set[int]) -> 
     if todo.size == 0:
         return np.zeros(2, dtype=np.float32)
     dx, dy = landmarks[todo, 0] - pose[0], landmarks[todo, 1] - pose[1]
-    heading_error = (np.arctan2(dy, dx) - pose[2] + math.pi) % (2 * math.pi) - math.pi
+    heading_error = wrap_angle(np.arctan2(dy, dx) - pose[2])
     k = int(np.argmin(np.hypot(dx, dy) + TURN_COST * np.abs(heading_error)))
     speed = 1.0 if abs(heading_error[k]) < 1.2 else 0.3
     turn = float(np.clip(STEERING_GAIN * heading_error[k], -1.0, 1.0))

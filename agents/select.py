@@ -217,8 +217,18 @@ def save_selected(run: str | Path, choice: Mapping[str, Any], provenance: Mappin
         shutil.copyfile(stats, partial / "vecnormalize.pkl")
     record = {**provenance, **choice, "statistics": None if stats is None else str(stats)}
     (partial / "selection.json").write_text(json.dumps(record, indent=2, allow_nan=False) + "\n")
-    shutil.rmtree(folder, ignore_errors=True)
-    partial.rename(folder)
+    # swap by renames only: a deletion that fails halfway would leave half of the earlier choice
+    previous = Path(run) / ".selected.previous"
+    shutil.rmtree(previous, ignore_errors=True)
+    if folder.exists():
+        folder.rename(previous)
+    try:
+        partial.rename(folder)
+    except OSError:
+        if previous.exists():
+            previous.rename(folder)
+        raise
+    shutil.rmtree(previous, ignore_errors=True)
     return folder / "model.zip"
 
 

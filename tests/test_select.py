@@ -122,6 +122,30 @@ def test_a_choice_that_fails_midway_leaves_the_earlier_one_as_it_was(run, monkey
     assert {p.name: p.read_bytes() for p in (run / "selected").iterdir()} == before
 
 
+def test_a_swap_that_fails_puts_the_earlier_choice_back(run, monkeypatch):
+    from pathlib import Path
+
+    first = {"chosen": "run_a:100", "path": str(run / "rl_model_100_steps.zip"), "steps": 100}
+    save_selected(run, first, {"env_id": "SeifExplore-v1"})
+    before = {p.name: p.read_bytes() for p in (run / "selected").iterdir()}
+    rename = Path.rename
+
+    def failing_rename(self, target):
+        if self.name == ".selected.partial":
+            raise OSError("no rename")
+        return rename(self, target)
+
+    monkeypatch.setattr(Path, "rename", failing_rename)
+    second = {"chosen": "run_a:300", "path": str(run / "rl_model_300_steps.zip"), "steps": 300}
+    with pytest.raises(OSError, match="no rename"):
+        save_selected(run, second, {"env_id": "SeifExplore-v1"})
+    assert {p.name: p.read_bytes() for p in (run / "selected").iterdir()} == before
+    monkeypatch.undo()
+    save_selected(run, second, {"env_id": "SeifExplore-v1"})  # and a swap that succeeds leaves nothing beside it
+    assert json.loads((run / "selected" / "selection.json").read_text())["chosen"] == "run_a:300"
+    assert not (run / ".selected.previous").exists() and not (run / ".selected.partial").exists()
+
+
 @pytest.mark.parametrize(
     ("kwargs", "match"),
     [

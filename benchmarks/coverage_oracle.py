@@ -68,13 +68,26 @@ def oracle_action(pose: np.ndarray, landmarks: np.ndarray, mapped: set[int]) -> 
 
 
 def run_oracle(env_id: str, seeds: Sequence[int]) -> dict[str, Any]:
-    """The oracle's episodes on ``seeds`` of ``env_id``: final map errors (mean, interval) and landmarks mapped."""
+    """The oracle's episodes on ``seeds`` of ``env_id``: final map errors (mean, interval) and landmarks mapped.
+
+    Raises
+    ------
+    ValueError
+        If ``seeds`` is empty, or the env associates by maximum likelihood (its filter's ids are then not
+        the true ones the oracle compares with).
+    """
+    seeds = [int(seed) for seed in seeds]
+    if not seeds:
+        raise ValueError("seeds must hold at least one seed")
     env = gym.make(env_id)
     base = env.unwrapped
+    if base.filter_config.data_association != "known":  # type: ignore[attr-defined]
+        env.close()
+        raise ValueError(f"env_id: {env_id!r} associates by maximum likelihood; the oracle needs the true ids")
     errors, mapped = [], []
     try:
         for seed in seeds:
-            _, info = env.reset(seed=int(seed))
+            _, info = env.reset(seed=seed)
             while True:
                 world = base.world  # type: ignore[attr-defined]
                 ids = {int(i) for i in base.filter.landmark_ids}  # type: ignore[attr-defined]

@@ -53,3 +53,17 @@ def test_main_prints_a_row_per_task_and_checks_episodes(oracle, capsys):
     with pytest.raises(SystemExit):
         oracle.main(["--episodes", "1"])
     assert "--episodes" in capsys.readouterr().err
+
+
+def test_run_oracle_refuses_what_it_cannot_measure(oracle):
+    with pytest.raises(ValueError, match="seeds"):
+        oracle.run_oracle("SeifExploreClusteredBudget-v2", [])
+    import gymnasium as gym
+
+    gym.register("OracleMlProbe-v0", entry_point="seif_gym.envs.explore:SeifExploreEnv",
+                 kwargs={"data_association": "ml"}, max_episode_steps=5)  # fmt: skip
+    try:
+        with pytest.raises(ValueError, match="env_id.*maximum likelihood"):
+            oracle.run_oracle("OracleMlProbe-v0", [0])
+    finally:
+        del gym.registry["OracleMlProbe-v0"]

@@ -100,48 +100,43 @@ def test_a_later_choice_without_statistics_removes_the_earlier_ones(run, tmp_pat
     assert not (selected / "vecnormalize.pkl").exists()
 
 
-def test_a_choice_that_fails_midway_leaves_the_earlier_one_as_it_was(run, monkeypatch):
+def _fail_halfway(stage, monkeypatch):
+    """Make ``save_selected`` fail while it copies the statistics, or when it swaps the new folder in."""
     import shutil
+    from pathlib import Path
 
     import agents.select
 
-    first = {"chosen": "run_a:100", "path": str(run / "rl_model_100_steps.zip"), "steps": 100}
-    save_selected(run, first, {"env_id": "SeifExplore-v1"})
-    before = {p.name: p.read_bytes() for p in (run / "selected").iterdir()}
-    copy = shutil.copyfile
+    copy, rename = shutil.copyfile, Path.rename
 
     def failing_copy(source, target):
         if str(source).endswith(".pkl"):
             raise OSError("disk full")
         return copy(source, target)
 
-    monkeypatch.setattr(agents.select.shutil, "copyfile", failing_copy)
+    def failing_rename(self, target):
+        if self.name == ".selected.partial":
+            raise OSError("disk full")
+        return rename(self, target)
+
+    if stage == "copy":
+        monkeypatch.setattr(agents.select.shutil, "copyfile", failing_copy)
+    else:
+        monkeypatch.setattr(Path, "rename", failing_rename)
+
+
+@pytest.mark.parametrize("stage", ["copy", "swap"])
+def test_a_choice_that_fails_midway_leaves_the_earlier_one_as_it_was(run, monkeypatch, stage):
+    first = {"chosen": "run_a:100", "path": str(run / "rl_model_100_steps.zip"), "steps": 100}
+    save_selected(run, first, {"env_id": "SeifExplore-v1"})
+    before = {p.name: p.read_bytes() for p in (run / "selected").iterdir()}
+    _fail_halfway(stage, monkeypatch)
     second = {"chosen": "run_a:300", "path": str(run / "rl_model_300_steps.zip"), "steps": 300}
     with pytest.raises(OSError, match="disk full"):
         save_selected(run, second, {"env_id": "SeifExplore-v1"})
     assert {p.name: p.read_bytes() for p in (run / "selected").iterdir()} == before
-
-
-def test_a_swap_that_fails_puts_the_earlier_choice_back(run, monkeypatch):
-    from pathlib import Path
-
-    first = {"chosen": "run_a:100", "path": str(run / "rl_model_100_steps.zip"), "steps": 100}
-    save_selected(run, first, {"env_id": "SeifExplore-v1"})
-    before = {p.name: p.read_bytes() for p in (run / "selected").iterdir()}
-    rename = Path.rename
-
-    def failing_rename(self, target):
-        if self.name == ".selected.partial":
-            raise OSError("no rename")
-        return rename(self, target)
-
-    monkeypatch.setattr(Path, "rename", failing_rename)
-    second = {"chosen": "run_a:300", "path": str(run / "rl_model_300_steps.zip"), "steps": 300}
-    with pytest.raises(OSError, match="no rename"):
-        save_selected(run, second, {"env_id": "SeifExplore-v1"})
-    assert {p.name: p.read_bytes() for p in (run / "selected").iterdir()} == before
     monkeypatch.undo()
-    save_selected(run, second, {"env_id": "SeifExplore-v1"})  # and a swap that succeeds leaves nothing beside it
+    save_selected(run, second, {"env_id": "SeifExplore-v1"})  # and a choice that succeeds leaves nothing beside it
     assert json.loads((run / "selected" / "selection.json").read_text())["chosen"] == "run_a:300"
     assert not (run / ".selected.previous").exists() and not (run / ".selected.partial").exists()
 

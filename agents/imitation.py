@@ -40,12 +40,17 @@ import gymnasium as gym
 import numpy as np
 from numpy.typing import ArrayLike
 
+from agents.baselines import BASELINES, Agent, make_agent
+from agents.oracle import CoverageOracle
+
 __all__ = [
+    "TEACHERS",
     "Demonstrations",
     "behaviour_clone",
     "collect_demonstrations",
     "discounted_returns",
     "kickstart",
+    "make_teacher",
     "round_seeds",
     "running_returns",
 ]
@@ -104,6 +109,25 @@ def discounted_returns(rewards: ArrayLike, dones: ArrayLike, gamma: float) -> np
     return returns
 
 
+#: What can teach: the baselines, and the coverage oracle (privileged: it reads the true state).
+TEACHERS: tuple[str, ...] = (*BASELINES, CoverageOracle.name)
+
+
+def make_teacher(name: str, env: gym.Env, *, seed: int) -> Agent:
+    """The teacher ``name`` (one of :data:`TEACHERS`) acting in ``env``; ``random`` draws from ``seed``.
+
+    Raises
+    ------
+    ValueError
+        If ``name`` is not one of :data:`TEACHERS`.
+    """
+    if name == CoverageOracle.name:
+        return CoverageOracle(env)
+    if name not in BASELINES:
+        raise ValueError(f"teacher: unknown {name!r}; teachers: {', '.join(TEACHERS)}")
+    return make_agent(name, env, **({"seed": seed} if name == "random" else {}))
+
+
 def collect_demonstrations(
     make_env: Callable[[], gym.Env],
     teacher: str,
@@ -117,20 +141,18 @@ def collect_demonstrations(
     make_env : callable
         Builds one training env (the config's wrappers applied).
     teacher : str
-        A baseline's name (:data:`agents.baselines.BASELINES`).
+        One of :data:`TEACHERS`.
     seeds : sequence of int
         One episode per seed.
     learner : callable, optional
         Maps an observation to the action that drives the episode (DAgger);
         ``None``: the teacher drives.
     """
-    from agents.baselines import make_agent
-
     parts = []
     for seed in seeds:
         env = make_env()
         try:
-            agent = make_agent(teacher, env, **({"seed": int(seed)} if teacher == "random" else {}))
+            agent = make_teacher(teacher, env, seed=int(seed))
             observation, _ = env.reset(seed=int(seed))
             agent.reset()
             observations: list[dict[str, np.ndarray]] = []

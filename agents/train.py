@@ -31,8 +31,9 @@ here what it means there, and a run of either command is read by
 * ``--init-from MODEL.zip``: start from a saved model's weights *and* its
   normalisation statistics (found by :func:`agents.checkpoints.vecnormalize_path`),
   with this run's hyperparameters (fine-tuning);
-* ``--kickstart BASELINE``: before learning, clone a baseline (``info_gain``)
-  into the policy, on its own episodes and then ``--dagger-rounds`` DAgger
+* ``--kickstart TEACHER``: before learning, clone a baseline (``info_gain``)
+  or the privileged ``coverage_oracle`` (:mod:`agents.oracle`) into the
+  policy, on the teacher's own episodes and then ``--dagger-rounds`` DAgger
   rounds, ``--kickstart-episodes`` episodes in all on training seeds drawn
   from ``--seed`` (:mod:`agents.imitation`); PPO then learns from the clone;
 * ``--mix-env ID`` (repeatable): train on a mixture of tasks. The training
@@ -202,9 +203,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument(
         "--kickstart",
         default=None,
-        metavar="BASELINE",
-        help="before learning, clone this baseline (e.g. info_gain) into the policy: its episodes, then "
-        "DAgger rounds (agents.imitation)",
+        metavar="TEACHER",
+        help="before learning, clone this teacher into the policy: a baseline (e.g. info_gain) or "
+        "coverage_oracle (privileged: reads the true state); its episodes, then DAgger rounds (agents.imitation)",
     )
     parser.add_argument(
         "--kickstart-episodes",
@@ -534,10 +535,10 @@ def kickstart_seeds(seed: int, episodes: int) -> list[int]:
 
 def _check_kickstart(args: argparse.Namespace) -> None:
     """``ValueError`` for ``--kickstart`` arguments that cannot work, before anything is built."""
-    from agents.baselines import BASELINES
+    from agents.imitation import TEACHERS
 
-    if args.kickstart not in BASELINES:
-        raise ValueError(f"--kickstart: unknown baseline {args.kickstart!r}; baselines: {', '.join(BASELINES)}")
+    if args.kickstart not in TEACHERS:
+        raise ValueError(f"--kickstart: unknown teacher {args.kickstart!r}; teachers: {', '.join(TEACHERS)}")
     if args.algo != "ppo":
         raise ValueError(f"--kickstart: clones into PPO's actor-critic policy, got --algo {args.algo}")
     if args.init_from:

@@ -4,7 +4,7 @@ Usage::
 
     python benchmarks/coverage_oracle.py [--env SeifExploreClusteredBudget-v2 ...] [--episodes 100] [--seed 500000]
 
-The *coverage oracle* reads what no agent may read (the true landmarks and
+The *coverage oracle* (:mod:`agents.oracle`) reads what no agent may read (the true landmarks and
 the true pose, ``env.unwrapped.world``) and drives greedily to the unmapped
 landmark that is nearest counting one metre per radian of turn, until the
 filter has mapped every landmark (the registered ids' known association: the
@@ -31,40 +31,7 @@ import numpy as np
 import seif_gym  # noqa: F401  (registers the envs)
 from agents.benchmark import VALIDATION_SEED
 from agents.evaluate import mean_ci
-from seif_gym.slam import wrap_angle
-
-#: Metres of path one radian of turn is worth when the oracle picks its next landmark.
-TURN_COST = 1.0
-#: Steering gain: the turn-rate action per radian of heading error (clipped to the action's bound).
-STEERING_GAIN = 2.0
-
-
-def oracle_action(pose: np.ndarray, landmarks: np.ndarray, mapped: set[int]) -> np.ndarray:
-    """The oracle's action: full speed towards the cheapest unmapped landmark, slower while it turns.
-
-    Parameters
-    ----------
-    pose : ndarray, shape (3,)
-        The true pose ``(x, y, θ)``.
-    landmarks : ndarray, shape (n, 2)
-        The true landmark positions; landmark ``i`` has id ``i``.
-    mapped : set of int
-        The ids the filter has mapped.
-
-    Returns
-    -------
-    ndarray, shape (2,)
-        ``(v, ω)`` in the env's action units; ``(0, 0)`` once every landmark is mapped.
-    """
-    todo = np.array([i for i in range(len(landmarks)) if i not in mapped], dtype=np.int64)
-    if todo.size == 0:
-        return np.zeros(2, dtype=np.float32)
-    dx, dy = landmarks[todo, 0] - pose[0], landmarks[todo, 1] - pose[1]
-    heading_error = wrap_angle(np.arctan2(dy, dx) - pose[2])
-    k = int(np.argmin(np.hypot(dx, dy) + TURN_COST * np.abs(heading_error)))
-    speed = 1.0 if abs(heading_error[k]) < 1.2 else 0.3
-    turn = float(np.clip(STEERING_GAIN * heading_error[k], -1.0, 1.0))
-    return np.array([speed, turn], dtype=np.float32)
+from agents.oracle import oracle_action
 
 
 def run_oracle(env_id: str, seeds: Sequence[int]) -> dict[str, Any]:

@@ -1,4 +1,5 @@
-"""benchmarks/coverage_oracle.py: the cheating explorer used as the tasks' coverage yardstick."""
+"""The coverage oracle (agents.oracle): the cheating explorer, as the tasks' yardstick
+(benchmarks/coverage_oracle.py) and as a privileged teacher for kickstarting."""
 
 from __future__ import annotations
 
@@ -6,8 +7,13 @@ import importlib.util
 import math
 from pathlib import Path
 
+import gymnasium as gym
 import numpy as np
 import pytest
+
+import seif_gym  # noqa: F401
+from agents.imitation import collect_demonstrations, make_teacher
+from agents.oracle import CoverageOracle, oracle_action
 
 PATH = Path(__file__).resolve().parents[1] / "benchmarks" / "coverage_oracle.py"
 
@@ -21,17 +27,17 @@ def oracle():
     return module
 
 
-def test_oracle_action_steers_to_the_cheapest_unmapped_landmark(oracle):
+def test_oracle_action_steers_to_the_cheapest_unmapped_landmark():
     landmarks = np.array([[4.0, 0.0], [0.0, 3.0], [-2.0, 0.0]])
     pose = np.array([0.0, 0.0, 0.0])
     # ahead at 4 m costs 4; left at 3 m costs 3 + pi/2; behind at 2 m costs 2 + pi: the one ahead
-    np.testing.assert_allclose(oracle.oracle_action(pose, landmarks, set()), [1.0, 0.0])
+    np.testing.assert_allclose(oracle_action(pose, landmarks, set()), [1.0, 0.0])
     # without it, the left one (4.57) before the one behind (5.14): slow while turning, full left turn
-    np.testing.assert_allclose(oracle.oracle_action(pose, landmarks, {0}), [0.3, 1.0])
+    np.testing.assert_allclose(oracle_action(pose, landmarks, {0}), [0.3, 1.0])
     # facing the other way, the one behind is now ahead
-    np.testing.assert_allclose(oracle.oracle_action(np.array([0.0, 0.0, math.pi]), landmarks, {0, 1}), [1.0, 0.0],
+    np.testing.assert_allclose(oracle_action(np.array([0.0, 0.0, math.pi]), landmarks, {0, 1}), [1.0, 0.0],
                                atol=1e-6)  # fmt: skip
-    np.testing.assert_array_equal(oracle.oracle_action(pose, landmarks, {0, 1, 2}), [0.0, 0.0])
+    np.testing.assert_array_equal(oracle_action(pose, landmarks, {0, 1, 2}), [0.0, 0.0])
 
 
 def test_oracle_maps_more_than_random_and_repeats(oracle):
@@ -58,8 +64,6 @@ def test_main_prints_a_row_per_task_and_checks_episodes(oracle, capsys):
 def test_run_oracle_refuses_what_it_cannot_measure(oracle):
     with pytest.raises(ValueError, match="seeds"):
         oracle.run_oracle("SeifExploreClusteredBudget-v2", [])
-    import gymnasium as gym
-
     gym.register("OracleMlProbe-v0", entry_point="seif_gym.envs.explore:SeifExploreEnv",
                  kwargs={"data_association": "ml"}, max_episode_steps=5)  # fmt: skip
     try:
@@ -67,3 +71,65 @@ def test_run_oracle_refuses_what_it_cannot_measure(oracle):
             oracle.run_oracle("OracleMlProbe-v0", [0])
     finally:
         del gym.registry["OracleMlProbe-v0"]
+
+
+def _true_action(env: gym.Env) -> np.ndarray:
+    base = env.unwrapped
+    return oracle_action(base.world.pose, base.world.landmarks, {int(i) for i in base.filter.landmark_ids})
+
+
+def test_the_agent_acts_on_the_true_state_of_its_env():
+    env = gym.make("SeifExploreClusteredBudget-v2")
+    agent = CoverageOracle(env)  # before reset: the world is built by reset
+    observation, _ = env.reset(seed=7)
+    for _ in range(5):
+        action, _ = agent.predict(observation)
+        np.testing.assert_array_equal(action, _true_action(env))
+        observation, *_ = env.step(np.array([0.5, 0.3], dtype=np.float32))  # it labels states it does not drive
+    batch = {key: np.stack([value, value]) for key, value in observation.items()}
+    with pytest.raises(ValueError, match="batch row 1"):
+        agent.predict(batch)
+    env.close()
+
+
+def test_the_agent_refuses_what_it_cannot_read():
+    with pytest.raises(TypeError, match="env"):
+        CoverageOracle(gym.make("CartPole-v1"))
+    ml = gym.make("SeifExplore-v2", data_association="ml")
+    with pytest.raises(ValueError, match="env.*maximum likelihood"):
+        CoverageOracle(ml)
+
+
+def test_as_a_teacher_it_labels_every_state_the_learner_drives_into():
+    assert isinstance(make_teacher("coverage_oracle", gym.make("SeifExploreClusteredBudget-v2"), seed=0),
+                      CoverageOracle)  # fmt: skip
+    with pytest.raises(ValueError, match="teacher: unknown 'oracle'"):
+        make_teacher("oracle", gym.make("SeifExploreClusteredBudget-v2"), seed=0)
+
+    def make_env() -> gym.Env:
+        return gym.make("SeifExploreClusteredBudget-v2", max_episode_steps=30)
+
+    def straight_then_left(observation) -> np.ndarray:
+        return np.array([1.0, 0.0 if observation["pose"][0] < 0.2 else 0.8], dtype=np.float32)
+
+    demos = collect_demonstrations(make_env, "coverage_oracle", [11], learner=straight_then_left)
+    # replay the learner's episode: each label is the oracle's action on the true state of that step
+    env = make_env()
+    observation, _ = env.reset(seed=11)
+    expected = []
+    while True:
+        expected.append(_true_action(env))
+        observation, _, terminated, truncated, _ = env.step(straight_then_left(observation))
+        if terminated or truncated:
+            break
+    np.testing.assert_array_equal(demos.actions, np.stack(expected))
+    assert len(demos) == 30 and len({tuple(a) for a in demos.actions}) > 1
+
+
+def test_module_doctests_pass():
+    import doctest
+
+    import agents.oracle
+
+    results = doctest.testmod(agents.oracle)
+    assert results.attempted > 0 and results.failed == 0

@@ -157,7 +157,7 @@ def test_kickstart_seeds_are_training_seeds_of_the_run():
 @pytest.mark.parametrize(
     ("extra", "message"),
     [
-        (["--kickstart", "oracle"], "--kickstart: unknown baseline"),
+        (["--kickstart", "oracle"], "--kickstart: unknown teacher"),
         (["--kickstart", "frontier", "--kickstart-episodes", "0"], "--kickstart-episodes"),
         (["--kickstart", "frontier", "--kickstart-episodes", "2", "--dagger-rounds", "3"], "seeds"),
         (["--kickstart", "frontier", "--dagger-rounds", "-1"], "non-negative"),

@@ -30,7 +30,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from agents.baselines import Agent, Observation, _unwrapped
+from agents.baselines import Agent, Observation
 from seif_gym.slam import wrap_angle
 
 __all__ = ["STEERING_GAIN", "TURN_COST", "CoverageOracle", "oracle_action"]
@@ -89,13 +89,13 @@ class CoverageOracle(Agent):
     name: ClassVar[str] = "coverage_oracle"
 
     def __init__(self, env: Any) -> None:
-        base = _unwrapped(env)
+        base: Any = getattr(env, "unwrapped", env)
         if not hasattr(base, "world") or getattr(base, "filter_config", None) is None:
             raise TypeError(f"env must be a single SeifExplore env, got {type(base).__name__}")
         if base.filter_config.data_association != "known":
             raise ValueError("env: associates by maximum likelihood; the oracle needs the true ids")
         super().__init__(env)
-        self._base: Any = base
+        self._base = base
 
     def _act(self, observation: Observation, index: int) -> np.ndarray:
         if index != 0:

@@ -3,11 +3,13 @@
 Usage::
 
     python -m agents.benchmark [--variants SeifExplore,SeifExploreLoop,...] [--version 1]
-        [--episodes 100] [--seed 1000000] [--agents ...] [--jobs 2] [--out benchmark] [--quiet]
+        [--episodes N] [--seed 1000000] [--agents ...] [--jobs 2] [--out benchmark] [--quiet]
 
 The protocol is in ``docs/benchmark.md``: each variant is run on the same
 *held-out* seeds ``seed … seed + episodes − 1`` (default 1 000 000 …
-1 000 099; training and checkpoint selection never reset with them), every
+1 000 099, and … 1 000 399 on the short budget tasks,
+:func:`held_out_episodes`; training and checkpoint selection never reset
+with them), every
 agent on the same seeds, deterministic actions, through
 :func:`agents.evaluate.evaluate_agents`. For each variant the agents are
 compared with the best baseline (the baseline of lowest mean final map error)
@@ -55,6 +57,9 @@ from agents.time_feature import TimeLeftObservation, uses_time_left
 __all__ = [
     "HELD_OUT_EPISODES",
     "HELD_OUT_SEED",
+    "HELD_OUT_SEEDS",
+    "SHORT_TASK_HELD_OUT_EPISODES",
+    "SHORT_TASK_STEPS",
     "VALIDATION_EPISODES",
     "VALIDATION_SEED",
     "LEADERBOARD_COLUMNS",
@@ -62,6 +67,7 @@ __all__ = [
     "ShippedPolicy",
     "benchmark_variant",
     "default_variants",
+    "held_out_episodes",
     "main",
     "policy_fits",
     "run_benchmark",
@@ -71,8 +77,35 @@ __all__ = [
 HELD_OUT_SEED = 1_000_000
 #: First validation seed of the protocol (checkpoint and hyperparameter selection).
 VALIDATION_SEED = 500_000
-#: Episodes of each split: held-out ``HELD_OUT_SEED`` … ``+ 99``, validation ``VALIDATION_SEED`` … ``+ 99``.
+#: Episodes of each split: held-out ``HELD_OUT_SEED`` … ``+ 99`` (on the tasks longer than
+#: :data:`SHORT_TASK_STEPS`), validation ``VALIDATION_SEED`` … ``+ 99``.
 HELD_OUT_EPISODES = VALIDATION_EPISODES = 100
+#: Tasks of at most this many steps (the budgets) are *short*: their held-out split is
+#: :data:`SHORT_TASK_HELD_OUT_EPISODES` episodes.
+SHORT_TASK_STEPS = 150
+#: Held-out episodes of a short task. Their paired per-episode differences spread 0.2–0.3 m, so
+#: 100 episodes resolve only leads above about 0.05 m; 400 (at a quarter of a 400-step task's cost
+#: per episode) resolve about 0.03 m (docs/benchmark.md, "Statistics").
+SHORT_TASK_HELD_OUT_EPISODES = 400
+#: Every held-out seed of the protocol (the most any task uses): nothing may be chosen on them.
+HELD_OUT_SEEDS = range(HELD_OUT_SEED, HELD_OUT_SEED + SHORT_TASK_HELD_OUT_EPISODES)
+
+
+def held_out_episodes(env_id: str) -> int:
+    """The protocol's held-out episodes of ``env_id``: 400 on the short tasks (the budgets), 100 on the others.
+
+    Raises
+    ------
+    ValueError
+        If ``env_id`` is not registered.
+    """
+    try:
+        steps = gym.spec(env_id).max_episode_steps
+    except gym.error.Error:
+        raise ValueError(f"env_id: unknown env {env_id!r}") from None
+    short = steps is not None and steps <= SHORT_TASK_STEPS
+    return SHORT_TASK_HELD_OUT_EPISODES if short else HELD_OUT_EPISODES
+
 
 POLICY_DIR = Path(__file__).parent / "policies"
 
@@ -225,10 +258,13 @@ def benchmark_variant(env_id: str, agents: Sequence[str], episodes: int, seed: i
     return table
 
 
-def run_benchmark(variants: Sequence[str], agents: Sequence[str], episodes: int, seed: int, out: str | Path,
+def run_benchmark(variants: Sequence[str], agents: Sequence[str], episodes: int | None, seed: int, out: str | Path,
                   jobs: int = 1, verbose: bool = False) -> list[dict[str, Any]]:  # fmt: skip
-    """Every agent on every variant (``jobs`` processes, one variant each); writes the leaderboard files."""
-    if int(episodes) < 1:
+    """Every agent on every variant (``jobs`` processes, one variant each); writes the leaderboard files.
+
+    ``episodes`` per agent and variant; ``None``: the protocol's (:func:`held_out_episodes`).
+    """
+    if episodes is not None and int(episodes) < 1:
         raise ValueError(f"episodes must be positive, got {episodes!r}")
     if int(jobs) < 1:
         raise ValueError(f"jobs must be positive, got {jobs!r}")
@@ -237,17 +273,18 @@ def run_benchmark(variants: Sequence[str], agents: Sequence[str], episodes: int,
         raise ValueError(f"agents: unknown {unknown} (baselines {list(BASELINES)}, policies {list(SHIPPED_POLICIES)})")
     folder = Path(out)
     folder.mkdir(parents=True, exist_ok=True)
-    work = [(env_id, list(agents), int(episodes), int(seed), folder, verbose) for env_id in variants]
+    counts = {env_id: held_out_episodes(env_id) if episodes is None else int(episodes) for env_id in variants}
+    work = [(env_id, list(agents), counts[env_id], int(seed), folder, verbose) for env_id in variants]
     tables = Executor(workers=int(jobs)).map(benchmark_variant, work)  # one variant per task
     rows = [row for table in tables for row in table]
     with (folder / "leaderboard.csv").open("w", newline="") as handle:
         writer = csv.DictWriter(handle, fieldnames=list(LEADERBOARD_COLUMNS))
         writer.writeheader()
         writer.writerows(rows)
-    meta = {"episodes": int(episodes), "seeds": [int(seed), int(seed) + int(episodes) - 1],
+    meta = {"episodes": counts, "seeds": {env_id: [int(seed), int(seed) + n - 1] for env_id, n in counts.items()},
             "seif_gym": seif_gym.__version__, "rows": rows}  # fmt: skip
     (folder / "leaderboard.json").write_text(json.dumps(meta, indent=2, allow_nan=False) + "\n")
-    (folder / "leaderboard.md").write_text(leaderboard_markdown(rows, episodes, seed))
+    (folder / "leaderboard.md").write_text(leaderboard_markdown(rows, seed))
     return rows
 
 
@@ -255,16 +292,17 @@ def _number(value: Any, digits: int = 3) -> str:
     return "n/a" if value is None else f"{value:.{digits}f}"
 
 
-def leaderboard_markdown(rows: Sequence[Mapping[str, Any]], episodes: int, seed: int) -> str:
+def leaderboard_markdown(rows: Sequence[Mapping[str, Any]], seed: int) -> str:
     """One Markdown table per variant, agents by mean final map error, with the paired verdicts."""
     lines = [f"# seif_gym {seif_gym.__version__} leaderboard", "",
-             f"Held-out seeds {seed}…{seed + episodes - 1} ({episodes} episodes per agent and variant); "
+             f"Held-out seeds from {seed}, the same for every agent of a variant (each variant's count below); "
              "difference: paired per-seed difference of the final map error to the best baseline, "
              "95% Student-t interval. Protocol: docs/benchmark.md.", ""]  # fmt: skip
     for env_id in dict.fromkeys(row["env_id"] for row in rows):
         mine = [row for row in rows if row["env_id"] == env_id]
         ranked = sorted((row for row in mine if row["episodes"]), key=lambda row: row["final_map_error"])
-        lines += [f"## {env_id}", "",
+        episodes = max(row["episodes"] for row in mine)
+        lines += [f"## {env_id}", "", f"Seeds {seed}…{seed + episodes - 1}, {episodes} episodes per agent.", "",
                   "| agent | final map error (m) | pose RMSE (m) | landmarks mapped | difference to best baseline (m) | verdict |",
                   "|---|--:|--:|--:|--:|---|"]  # fmt: skip
         for row in ranked:
@@ -290,7 +328,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--variants", default="", help="comma-separated layouts or env ids (default: every layout)")
     parser.add_argument("--version", type=int, default=None, help="version of the layouts (default: the newest)")
     parser.add_argument(
-        "--episodes", type=int, default=HELD_OUT_EPISODES, help="held-out episodes per agent and variant"
+        "--episodes",
+        type=int,
+        default=None,
+        help=f"held-out episodes per agent and variant (default: the protocol's, {SHORT_TASK_HELD_OUT_EPISODES} on "
+        f"tasks of at most {SHORT_TASK_STEPS} steps, {HELD_OUT_EPISODES} on the others)",
     )
     parser.add_argument("--seed", type=int, default=HELD_OUT_SEED, help="first held-out seed (default %(default)s)")
     parser.add_argument("--agents", default=",".join([*BASELINES, *SHIPPED_POLICIES]),

@@ -42,7 +42,7 @@ import gymnasium as gym
 import numpy as np
 
 from agents import BASELINES
-from agents.benchmark import HELD_OUT_EPISODES, HELD_OUT_SEED, VALIDATION_EPISODES, VALIDATION_SEED
+from agents.benchmark import HELD_OUT_SEEDS, VALIDATION_EPISODES, VALIDATION_SEED
 from agents.checkpoints import vecnormalize_path
 from agents.cli import json_object
 from agents.evaluate import PAIRED_METRIC, evaluate_agents, signed, write_outputs
@@ -115,10 +115,10 @@ def _check_seeds(seed: int, episodes: int) -> None:
         raise ValueError(f"episodes must be a positive int, got {episodes!r}")
     if seed < 0:
         raise ValueError(f"seed must be >= 0, got {seed}")
-    if seed < HELD_OUT_SEED + HELD_OUT_EPISODES and seed + episodes > HELD_OUT_SEED:
+    if seed < HELD_OUT_SEEDS.stop and seed + episodes > HELD_OUT_SEEDS.start:
         raise ValueError(
-            f"seed: {seed}…{seed + episodes - 1} reaches into the held-out seeds {HELD_OUT_SEED}…"
-            f"{HELD_OUT_SEED + HELD_OUT_EPISODES - 1}, which choose nothing (docs/benchmark.md)"
+            f"seed: {seed}…{seed + episodes - 1} reaches into the held-out seeds {HELD_OUT_SEEDS.start}…"
+            f"{HELD_OUT_SEEDS.stop - 1}, which choose nothing (docs/benchmark.md)"
         )
 
 

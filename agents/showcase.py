@@ -32,7 +32,7 @@ import gymnasium as gym
 
 import seif_gym  # noqa: F401  (registers the envs)
 from agents import BASELINES
-from agents.benchmark import HELD_OUT_EPISODES, HELD_OUT_SEED
+from agents.benchmark import HELD_OUT_SEED, held_out_episodes
 from agents.evaluate import SB3Agent, evaluate_agents, markdown_table, paired_table, write_outputs
 from seif_gym.progress import Progress
 
@@ -94,7 +94,8 @@ def verdict_sentence(summary: Mapping[str, Any], label: str) -> str:
 
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--episodes", type=int, default=HELD_OUT_EPISODES)
+    parser.add_argument("--episodes", type=int, default=None,
+                        help="held-out episodes per agent (default: the protocol's for --env)")  # fmt: skip
     parser.add_argument("--seed", type=int, default=HELD_OUT_SEED)
     parser.add_argument("--policy", default=str(SHIPPED_POLICY), help="SB3 .zip of the policy to show")
     parser.add_argument("--env", default=ENV_ID, help="registered env id (default %(default)s)")
@@ -103,6 +104,11 @@ def main(argv: list[str] | None = None) -> None:
                         help="also a percentile bootstrap interval of the paired differences, N resamples")  # fmt: skip
     parser.add_argument("--quiet", action="store_true", help="no progress on stderr")
     args = parser.parse_args(argv)
+    if args.episodes is None:
+        try:
+            args.episodes = held_out_episodes(args.env)
+        except ValueError as error:
+            parser.error(f"--env: {error}")
     if args.episodes < 1:
         parser.error(f"--episodes must be positive, got {args.episodes}")
     if args.bootstrap < 0:

@@ -552,3 +552,11 @@ def test_json_object_arguments_are_read_once_for_every_command_line(capsys):
             assert exit_info.value.code == 2
             error = capsys.readouterr().err
             assert "--env-kwargs" in error and message in error, error
+
+
+def test_showcase_takes_the_protocol_episode_count_of_its_env(capsys) -> None:
+    from agents.showcase import main as showcase_main
+
+    with pytest.raises(SystemExit):
+        showcase_main(["--env", "Nope-v0"])  # the protocol's count is looked up before anything runs
+    assert "--env: env_id: unknown env 'Nope-v0'" in capsys.readouterr().err

@@ -9,6 +9,7 @@ import math
 import numpy as np
 import pytest
 
+import seif_gym
 from agents import benchmark
 
 
@@ -52,13 +53,40 @@ def test_run_benchmark_writes_the_leaderboard(tmp_path, monkeypatch):
     assert by_agent[other]["difference"] == pytest.approx(expected)
     assert by_agent[other]["verdict"] in ("beats", "worse", "tie (interval holds 0)")
     saved = json.loads((tmp_path / "leaderboard.json").read_text())
-    assert saved["seeds"] == [7, 8] and len(saved["rows"]) == 3
+    assert saved["seeds"] == {"SeifExplore-v1": [7, 8]} and saved["episodes"] == {"SeifExplore-v1": 2}
+    assert len(saved["rows"]) == 3
     with (tmp_path / "leaderboard.csv").open() as handle:
         assert tuple(csv.DictReader(handle).fieldnames) == benchmark.LEADERBOARD_COLUMNS
     text = (tmp_path / "leaderboard.md").read_text()
-    assert "## SeifExplore-v1" in text and "ppo: left out" in text
+    assert "## SeifExplore-v1" in text and "ppo: left out" in text and "Seeds 7…8, 2 episodes per agent." in text
     assert (tmp_path / "SeifExplore-v1" / "map_error.png").stat().st_size > 0
     assert math.isfinite(by_agent["random"]["final_map_error"])
+
+
+def test_held_out_episodes_are_400_on_the_short_tasks_and_100_on_the_others():
+    assert benchmark.held_out_episodes("SeifExploreClusteredBudget-v2") == 400  # 100 steps
+    assert benchmark.held_out_episodes("SeifExploreLoopBudget-v2") == 400  # 150 steps
+    assert benchmark.held_out_episodes("SeifExplore-v2") == 100  # 400 steps
+    assert benchmark.held_out_episodes("SeifExploreLarge-v2") == 100
+    longest = max(benchmark.held_out_episodes(env_id) for env_id in seif_gym.VARIANTS)
+    assert benchmark.HELD_OUT_SEEDS == range(benchmark.HELD_OUT_SEED, benchmark.HELD_OUT_SEED + longest)
+    with pytest.raises(ValueError, match="env_id: unknown env 'Nope-v0'"):
+        benchmark.held_out_episodes("Nope-v0")
+
+
+def test_run_benchmark_runs_each_variant_on_its_protocol_count(tmp_path, monkeypatch):
+    counts = {}
+
+    def fake_variant(env_id, agents, episodes, seed, out, verbose=False):
+        counts[env_id] = (episodes, seed)
+        return []
+
+    monkeypatch.setattr(benchmark, "benchmark_variant", fake_variant)
+    variants = ["SeifExplore-v2", "SeifExploreClusteredBudget-v2"]
+    benchmark.run_benchmark(variants, ["random"], episodes=None, seed=1_000_000, out=tmp_path)
+    assert counts == {"SeifExplore-v2": (100, 1_000_000), "SeifExploreClusteredBudget-v2": (400, 1_000_000)}
+    saved = json.loads((tmp_path / "leaderboard.json").read_text())
+    assert saved["seeds"]["SeifExploreClusteredBudget-v2"] == [1_000_000, 1_000_399]
 
 
 def test_run_benchmark_rejects_bad_arguments(tmp_path):

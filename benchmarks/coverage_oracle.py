@@ -31,7 +31,7 @@ import numpy as np
 import seif_gym  # noqa: F401  (registers the envs)
 from agents.benchmark import VALIDATION_SEED
 from agents.evaluate import mean_ci
-from agents.oracle import oracle_action
+from agents.oracle import CoverageOracle
 
 
 def run_oracle(env_id: str, seeds: Sequence[int]) -> dict[str, Any]:
@@ -47,18 +47,20 @@ def run_oracle(env_id: str, seeds: Sequence[int]) -> dict[str, Any]:
     if not seeds:
         raise ValueError("seeds must hold at least one seed")
     env = gym.make(env_id)
-    base = env.unwrapped
-    if base.filter_config.data_association != "known":  # type: ignore[attr-defined]
+    try:
+        oracle = CoverageOracle(env)
+    except ValueError:
         env.close()
-        raise ValueError(f"env_id: {env_id!r} associates by maximum likelihood; the oracle needs the true ids")
+        raise ValueError(
+            f"env_id: {env_id!r} associates by maximum likelihood; the oracle needs the true ids"
+        ) from None
     errors, mapped = [], []
     try:
         for seed in seeds:
-            _, info = env.reset(seed=seed)
+            observation, info = env.reset(seed=seed)
             while True:
-                world = base.world  # type: ignore[attr-defined]
-                ids = {int(i) for i in base.filter.landmark_ids}  # type: ignore[attr-defined]
-                _, _, terminated, truncated, info = env.step(oracle_action(world.pose, world.landmarks, ids))
+                action, _ = oracle.predict(observation)
+                observation, _, terminated, truncated, info = env.step(action)
                 if terminated or truncated:
                     break
             errors.append(float(info["map_error"]))

@@ -88,7 +88,7 @@ SHORT_TASK_STEPS = 150
 #: per episode) resolve about 0.03 m (docs/benchmark.md, "Statistics").
 SHORT_TASK_HELD_OUT_EPISODES = 400
 #: Every held-out seed of the protocol (the most any task uses): nothing may be chosen on them.
-HELD_OUT_SEEDS = range(HELD_OUT_SEED, HELD_OUT_SEED + SHORT_TASK_HELD_OUT_EPISODES)
+HELD_OUT_SEEDS = range(HELD_OUT_SEED, HELD_OUT_SEED + max(HELD_OUT_EPISODES, SHORT_TASK_HELD_OUT_EPISODES))
 
 
 def held_out_episodes(env_id: str) -> int:
@@ -96,9 +96,13 @@ def held_out_episodes(env_id: str) -> int:
 
     Raises
     ------
+    TypeError
+        If ``env_id`` is not a string.
     ValueError
         If ``env_id`` is not registered.
     """
+    if not isinstance(env_id, str):
+        raise TypeError(f"env_id must be a str, got {type(env_id).__name__}")
     try:
         steps = gym.spec(env_id).max_episode_steps
     except gym.error.Error:
@@ -271,9 +275,12 @@ def run_benchmark(variants: Sequence[str], agents: Sequence[str], episodes: int 
     unknown = [name for name in agents if name not in BASELINES and name not in SHIPPED_POLICIES]
     if unknown:
         raise ValueError(f"agents: unknown {unknown} (baselines {list(BASELINES)}, policies {list(SHIPPED_POLICIES)})")
+    # before anything is written: an unknown variant leaves no folder behind
+    counts = {env_id: held_out_episodes(env_id) for env_id in variants}  # checks each id is registered
+    if episodes is not None:
+        counts = dict.fromkeys(counts, int(episodes))
     folder = Path(out)
     folder.mkdir(parents=True, exist_ok=True)
-    counts = {env_id: held_out_episodes(env_id) if episodes is None else int(episodes) for env_id in variants}
     work = [(env_id, list(agents), counts[env_id], int(seed), folder, verbose) for env_id in variants]
     tables = Executor(workers=int(jobs)).map(benchmark_variant, work)  # one variant per task
     rows = [row for table in tables for row in table]

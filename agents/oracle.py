@@ -30,7 +30,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from agents.baselines import Agent, Observation
+from agents.baselines import Agent, Observation, _unwrapped
 from seif_gym.slam import wrap_angle
 
 __all__ = ["STEERING_GAIN", "TURN_COST", "CoverageOracle", "oracle_action"]
@@ -57,7 +57,17 @@ def oracle_action(pose: np.ndarray, landmarks: np.ndarray, mapped: set[int]) -> 
     -------
     ndarray, shape (2,)
         ``(v, ω)`` in the env's action units; ``(0, 0)`` once every landmark is mapped.
+
+    Raises
+    ------
+    ValueError
+        If ``pose`` is not of shape (3,) or ``landmarks`` not of shape (n, 2).
     """
+    pose, landmarks = np.asarray(pose, dtype=float), np.asarray(landmarks, dtype=float)
+    if pose.shape != (3,):
+        raise ValueError(f"pose must have shape (3,), got {pose.shape}")
+    if landmarks.ndim != 2 or landmarks.shape[1] != 2:
+        raise ValueError(f"landmarks must have shape (n, 2), got {landmarks.shape}")
     todo = np.array([i for i in range(len(landmarks)) if i not in mapped], dtype=np.int64)
     if todo.size == 0:
         return np.zeros(2, dtype=np.float32)
@@ -89,7 +99,7 @@ class CoverageOracle(Agent):
     name: ClassVar[str] = "coverage_oracle"
 
     def __init__(self, env: Any) -> None:
-        base: Any = getattr(env, "unwrapped", env)
+        base: Any = _unwrapped(env)
         if not hasattr(base, "world") or getattr(base, "filter_config", None) is None:
             raise TypeError(f"env must be a single SeifExplore env, got {type(base).__name__}")
         if base.filter_config.data_association != "known":

@@ -47,15 +47,12 @@ def run_oracle(env_id: str, seeds: Sequence[int]) -> dict[str, Any]:
     if not seeds:
         raise ValueError("seeds must hold at least one seed")
     env = gym.make(env_id)
-    try:
-        oracle = CoverageOracle(env)
-    except ValueError:
-        env.close()
-        raise ValueError(
-            f"env_id: {env_id!r} associates by maximum likelihood; the oracle needs the true ids"
-        ) from None
     errors, mapped = [], []
     try:
+        try:
+            oracle = CoverageOracle(env)
+        except ValueError as error:  # name this function's argument
+            raise ValueError(f"env_id: {env_id!r}: {error}") from None
         for seed in seeds:
             observation, info = env.reset(seed=seed)
             while True:

@@ -72,6 +72,8 @@ def test_held_out_episodes_are_400_on_the_short_tasks_and_100_on_the_others():
     assert benchmark.HELD_OUT_SEEDS == range(benchmark.HELD_OUT_SEED, benchmark.HELD_OUT_SEED + longest)
     with pytest.raises(ValueError, match="env_id: unknown env 'Nope-v0'"):
         benchmark.held_out_episodes("Nope-v0")
+    with pytest.raises(TypeError, match="env_id must be a str"):
+        benchmark.held_out_episodes(5)
 
 
 def test_run_benchmark_runs_each_variant_on_its_protocol_count(tmp_path, monkeypatch):
@@ -87,6 +89,14 @@ def test_run_benchmark_runs_each_variant_on_its_protocol_count(tmp_path, monkeyp
     assert counts == {"SeifExplore-v2": (100, 1_000_000), "SeifExploreClusteredBudget-v2": (400, 1_000_000)}
     saved = json.loads((tmp_path / "leaderboard.json").read_text())
     assert saved["seeds"]["SeifExploreClusteredBudget-v2"] == [1_000_000, 1_000_399]
+
+
+@pytest.mark.parametrize("episodes", [None, 2])
+def test_run_benchmark_refuses_an_unknown_variant_before_writing_anything(tmp_path, episodes):
+    out = tmp_path / "board"
+    with pytest.raises(ValueError, match="env_id: unknown env 'Nope-v0'"):
+        benchmark.run_benchmark(["SeifExplore-v2", "Nope-v0"], ["random"], episodes=episodes, seed=0, out=out)
+    assert not out.exists()
 
 
 def test_run_benchmark_rejects_bad_arguments(tmp_path):

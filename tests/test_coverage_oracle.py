@@ -38,6 +38,10 @@ def test_oracle_action_steers_to_the_cheapest_unmapped_landmark():
     np.testing.assert_allclose(oracle_action(np.array([0.0, 0.0, math.pi]), landmarks, {0, 1}), [1.0, 0.0],
                                atol=1e-6)  # fmt: skip
     np.testing.assert_array_equal(oracle_action(pose, landmarks, {0, 1, 2}), [0.0, 0.0])
+    with pytest.raises(ValueError, match=r"pose must have shape \(3,\)"):
+        oracle_action(np.zeros(2), landmarks, set())
+    with pytest.raises(ValueError, match=r"landmarks must have shape \(n, 2\)"):
+        oracle_action(pose, landmarks.ravel(), set())
 
 
 def test_oracle_maps_more_than_random_and_repeats(oracle):

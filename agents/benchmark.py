@@ -50,7 +50,7 @@ import gymnasium as gym
 
 import seif_gym
 from agents import BASELINES
-from agents.evaluate import evaluate_agents, write_outputs
+from agents.evaluate import evaluate_agents, sb3_algorithm, write_outputs
 from agents.parallel import Executor
 from agents.time_feature import TimeLeftObservation, uses_time_left
 
@@ -194,9 +194,7 @@ def _resolve_variants(names: Sequence[str], version: int | None) -> list[str]:
 
 def policy_fits(policy: ShippedPolicy, env_id: str) -> bool:
     """Whether ``policy`` accepts the observation and action spaces of ``env_id``."""
-    from stable_baselines3 import PPO
-
-    model = PPO.load(policy.path, device="cpu")
+    model = sb3_algorithm(policy.path).load(policy.path, device="cpu")
     env = gym.make(env_id)
     try:
         # a policy with the budget's clock adds that entry itself (agents.time_feature)

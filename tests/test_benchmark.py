@@ -32,6 +32,22 @@ def test_shipped_policy_fits_the_default_variant():
         assert benchmark.policy_fits(policy, policy.trained_on)
 
 
+def test_policy_fits_reads_a_recurrent_policy(tmp_path):
+    """A RecurrentPPO ``.zip`` (a policy the leaderboard may ship) is read by its own class."""
+    import gymnasium as gym
+    from sb3_contrib import RecurrentPPO
+
+    from agents.networks import BeliefRecurrentPolicy
+
+    env = gym.make("SeifExploreLoopBudget-v2")
+    model = RecurrentPPO(BeliefRecurrentPolicy, env, n_steps=16, batch_size=16, device="cpu",
+                         policy_kwargs={"lstm_hidden_size": 8})  # fmt: skip
+    env.close()
+    path = tmp_path / "lstm.zip"
+    model.save(path)
+    assert benchmark.policy_fits(benchmark.ShippedPolicy(path, "SeifExploreLoopBudget-v2", "a test"), "SeifExplore-v2")
+
+
 def test_run_benchmark_writes_the_leaderboard(tmp_path, monkeypatch):
     # a policy whose spaces do not fit is left out, and the leaderboard says so
     monkeypatch.setattr(benchmark, "policy_fits", lambda policy, env_id: False)

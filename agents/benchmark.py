@@ -145,6 +145,9 @@ SHIPPED_POLICIES: dict[str, ShippedPolicy] = {
     "ppo_budget_v2": ShippedPolicy(
         POLICY_DIR / "ppo_budget_v2.zip", "SeifExploreBudget-v2", "docs/benchmark.md, 'Shipped policies'"
     ),
+    "ppo_lstm_loop_budget_v2": ShippedPolicy(
+        POLICY_DIR / "ppo_lstm_loop_budget_v2.zip", "SeifExploreLoopBudget-v2", "docs/benchmark.md, 'Shipped policies'"
+    ),
 }
 
 #: Columns of ``leaderboard.csv`` (and keys of each row of ``leaderboard.json``).

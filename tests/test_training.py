@@ -65,16 +65,23 @@ def _same_weights(a: dict[str, torch.Tensor], b: dict[str, torch.Tensor]) -> boo
 
 
 # -- the config --------------------------------------------------------------------------------------
-def test_config_entry_is_the_shipped_policys_recipe():
-    """The SeifExplore-v0 entry holds what the shipped model was trained with, shaping included."""
-    from stable_baselines3 import PPO
+@pytest.mark.parametrize(
+    "algo, env_id, path",
+    [
+        ("ppo", "SeifExplore-v0", SHIPPED_POLICY),
+        ("ppo_lstm", "SeifExploreLoopBudget-v2", POLICIES / "ppo_lstm_loop_budget_v2.zip"),
+    ],
+)
+def test_config_entry_is_the_shipped_policys_recipe(algo, env_id, path):
+    """The config entry holds what the shipped model was trained with, shaping included."""
+    from agents.evaluate import sb3_algorithm
 
-    entry = load("ppo")["SeifExplore-v0"]
-    shipped = PPO.load(SHIPPED_POLICY, device="cpu")
+    entry = load(algo)[env_id]
+    shipped = sb3_algorithm(path).load(path, device="cpu")
     for key in ("n_steps", "batch_size", "n_epochs", "gamma", "gae_lambda", "ent_coef", "vf_coef", "max_grad_norm"):
         assert getattr(shipped, key) == pytest.approx(entry[key]), key
     assert shipped.n_envs == entry["n_envs"]
-    assert shipped.learning_rate == pytest.approx(entry["learning_rate"])
+    assert shipped.lr_schedule(1.0) == pytest.approx(entry["learning_rate"])
     assert shipped.clip_range(1.0) == pytest.approx(entry["clip_range"])
     assert entry["env_wrapper"] == [{"agents.shaping.CoverageShaping": {"coef": 0.5, "gamma": 0.995}}]
     # the shipped network, by the config's policy class and policy_kwargs
@@ -83,7 +90,7 @@ def test_config_entry_is_the_shipped_policys_recipe():
 
     policy_class = get_class_by_name(entry["policy"])
     kwargs = eval(entry["policy_kwargs"])  # noqa: S307  (the project's own config, as rl-zoo3 reads it)
-    env = gym.make("SeifExplore-v0")
+    env = gym.make(env_id)
     policy = policy_class(env.observation_space, env.action_space, lambda _: 0.0, **kwargs)
     assert {k: v.shape for k, v in policy.state_dict().items()} == {
         k: v.shape for k, v in shipped.policy.state_dict().items()

@@ -33,7 +33,7 @@ def test_shipped_policy_fits_the_default_variant():
 
 
 def test_policy_fits_reads_a_recurrent_policy(tmp_path):
-    """A RecurrentPPO ``.zip`` (a policy the leaderboard may ship) is read by its own class."""
+    """A RecurrentPPO ``.zip`` (the leaderboard ships one) loads, with its own algorithm, and fits its task."""
     import gymnasium as gym
     from sb3_contrib import RecurrentPPO
 
@@ -45,6 +45,7 @@ def test_policy_fits_reads_a_recurrent_policy(tmp_path):
     env.close()
     path = tmp_path / "lstm.zip"
     model.save(path)
+    assert benchmark.sb3_algorithm(path) is RecurrentPPO
     assert benchmark.policy_fits(benchmark.ShippedPolicy(path, "SeifExploreLoopBudget-v2", "a test"), "SeifExplore-v2")
 
 

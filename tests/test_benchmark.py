@@ -37,6 +37,7 @@ def test_policy_fits_reads_a_recurrent_policy(tmp_path):
     import gymnasium as gym
     from sb3_contrib import RecurrentPPO
 
+    from agents.evaluate import sb3_algorithm
     from agents.networks import BeliefRecurrentPolicy
 
     env = gym.make("SeifExploreLoopBudget-v2")
@@ -45,7 +46,7 @@ def test_policy_fits_reads_a_recurrent_policy(tmp_path):
     env.close()
     path = tmp_path / "lstm.zip"
     model.save(path)
-    assert benchmark.sb3_algorithm(path) is RecurrentPPO
+    assert sb3_algorithm(path) is RecurrentPPO
     assert benchmark.policy_fits(benchmark.ShippedPolicy(path, "SeifExploreLoopBudget-v2", "a test"), "SeifExplore-v2")
 
 

@@ -41,6 +41,10 @@ here what it means there, and a run of either command is read by
   and one ``--mix-env``: four of each); the config's entry, the validation
   and the checkpoints' selection stay those of ``--env``. The ids must share
   the observation and action spaces (the budget layouts do);
+* a warning when a decaying schedule (``lin_3e-4``) would turn negative at
+  the last update: SB3 collects whole rollouts, so a run of ``--timesteps``
+  that is not a multiple of ``n_steps * n_envs`` ends past its schedule's end
+  (:func:`negative_schedule_warnings`);
 * ``--out DIR``: the run's folder exactly (default: rl-zoo3's
   ``-f logs`` layout, ``logs/<algo>/<EnvId>_<N>``, which ``enjoy -f logs``
   finds).
@@ -521,7 +525,48 @@ def prepare(args: argparse.Namespace) -> tuple[Any, Any]:
             )
     if args.kickstart:
         _kickstart(args, experiment, model)
+    if not args.quiet:
+        for line in negative_schedule_warnings(model, experiment.n_timesteps):
+            print(f"agents.train: {line}", file=sys.stderr)
     return experiment, model
+
+
+def last_update_progress(total_timesteps: int, rollout_steps: int) -> float:
+    """SB3's ``progress_remaining`` at an on-policy run's last update.
+
+    SB3 collects whole rollouts of ``rollout_steps`` (``n_steps * n_envs``) until
+    ``total_timesteps`` is reached, and updates after each at
+    ``1 - num_timesteps / total_timesteps``: below zero at the last update when
+    ``total_timesteps`` is not a multiple of ``rollout_steps``.
+    """
+    if total_timesteps < 1 or rollout_steps < 1:
+        raise ValueError(f"total_timesteps and rollout_steps must be positive, got {total_timesteps}, {rollout_steps}")
+    rollouts = -(-total_timesteps // rollout_steps)  # ceil
+    return 1.0 - rollouts * rollout_steps / total_timesteps
+
+
+def negative_schedule_warnings(model: Any, total_timesteps: int) -> list[str]:
+    """What an on-policy model's schedules would reach below zero at its last update.
+
+    rl-zoo3's ``lin_<x>`` schedule is ``progress_remaining * x``, unclamped: a
+    run whose steps overshoot ``total_timesteps`` (100 000 steps in rollouts of
+    4096 end at 102 400) makes its last update with a negative learning rate (a
+    step up the loss) or clip range. One line per such schedule, with the fix.
+    """
+    n_steps, n_envs = getattr(model, "n_steps", None), getattr(model, "n_envs", None)
+    if not isinstance(n_steps, int) or not isinstance(n_envs, int) or total_timesteps < 1:
+        return []  # off-policy: progress advances step by step and ends at zero
+    rollout_steps = n_steps * n_envs
+    progress = last_update_progress(total_timesteps, rollout_steps)
+    lines = []
+    for name, schedule in (("learning_rate", model.lr_schedule), ("clip_range", getattr(model, "clip_range", None))):
+        if callable(schedule) and float(schedule(progress)) < 0.0:
+            lines.append(
+                f"{name} is {float(schedule(progress)):.3g} at the last update (progress {progress:.4f}): "
+                f"pass --timesteps as a multiple of n_steps * n_envs = {rollout_steps} "
+                f"(e.g. {-(-total_timesteps // rollout_steps) * rollout_steps})"
+            )
+    return lines
 
 
 def kickstart_seeds(seed: int, episodes: int) -> list[int]:

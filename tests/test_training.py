@@ -23,7 +23,15 @@ pytest.importorskip("rl_zoo3", reason="rl_zoo3 is in the train extra")
 
 from agents.callbacks import MapErrorEvalCallback  # noqa: E402
 from agents.hyperparams import load  # noqa: E402
-from agents.train import build_parser, main, mixture_ids, prepare, train  # noqa: E402
+from agents.train import (  # noqa: E402
+    build_parser,
+    last_update_progress,
+    main,
+    mixture_ids,
+    negative_schedule_warnings,
+    prepare,
+    train,
+)
 
 POLICIES = Path(SHIPPED_POLICY).parent
 #: a small, quick run: 2 envs of 10 landmarks and 60-step episodes, 2 rollouts of 2 x 128 steps
@@ -176,6 +184,28 @@ def test_bad_arguments_are_refused(tmp_path):
         build_parser().parse_args([*SMALL, "--eval-freq", "0"])
     with pytest.raises(SystemExit):
         build_parser().parse_args([*SMALL, "--env-kwargs", "[1]"])
+
+
+def test_last_update_progress_is_where_sb3_updates_last():
+    # 100 000 steps in rollouts of 8 x 512: 25 rollouts, the last update after 102 400 steps
+    assert last_update_progress(100_000, 4096) == pytest.approx(1 - 102_400 / 100_000)
+    assert last_update_progress(102_400, 4096) == 0.0
+    assert last_update_progress(10, 4096) == pytest.approx(1 - 4096 / 10)
+    with pytest.raises(ValueError, match="rollout_steps"):
+        last_update_progress(100, 0)
+
+
+def test_a_decaying_schedule_that_would_turn_negative_is_reported(tmp_path, capfd):
+    # SMALL collects rollouts of 2 x 128 = 256 steps: 300 steps end at 512, progress 1 - 512/300
+    args = [*SMALL, "learning_rate=lin_3e-4", "clip_range=lin_0.2", "--out", str(tmp_path), "--timesteps", "300"]
+    _, model = prepare(build_parser().parse_args(args))
+    lines = negative_schedule_warnings(model, 300)
+    assert [line.split()[0] for line in lines] == ["learning_rate", "clip_range"]
+    assert f"{3e-4 * (1 - 512 / 300):.3g}" in lines[0] and "e.g. 512" in lines[0]
+    assert "agents.train: learning_rate is" in capfd.readouterr().err
+    assert negative_schedule_warnings(model, 512) == []  # a whole number of rollouts ends at zero
+    _, constant = prepare(build_parser().parse_args([*SMALL, "--out", str(tmp_path / "c"), "--timesteps", "300"]))
+    assert negative_schedule_warnings(constant, 300) == []
 
 
 def test_mix_env_cycles_the_training_envs_through_the_ids_and_validates_on_env(tmp_path):

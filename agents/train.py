@@ -531,6 +531,13 @@ def prepare(args: argparse.Namespace) -> tuple[Any, Any]:
     return experiment, model
 
 
+def _last_update_step(total_timesteps: int, rollout_steps: int) -> int:
+    """The step count at an on-policy run's last update: ``total_timesteps`` rounded up to whole rollouts."""
+    if total_timesteps < 1 or rollout_steps < 1:
+        raise ValueError(f"total_timesteps and rollout_steps must be positive, got {total_timesteps}, {rollout_steps}")
+    return -(-total_timesteps // rollout_steps) * rollout_steps
+
+
 def last_update_progress(total_timesteps: int, rollout_steps: int) -> float:
     """SB3's ``progress_remaining`` at an on-policy run's last update.
 
@@ -539,10 +546,7 @@ def last_update_progress(total_timesteps: int, rollout_steps: int) -> float:
     ``1 - num_timesteps / total_timesteps``: below zero at the last update when
     ``total_timesteps`` is not a multiple of ``rollout_steps``.
     """
-    if total_timesteps < 1 or rollout_steps < 1:
-        raise ValueError(f"total_timesteps and rollout_steps must be positive, got {total_timesteps}, {rollout_steps}")
-    rollouts = -(-total_timesteps // rollout_steps)  # ceil
-    return 1.0 - rollouts * rollout_steps / total_timesteps
+    return 1.0 - _last_update_step(total_timesteps, rollout_steps) / total_timesteps
 
 
 def negative_schedule_warnings(model: Any, total_timesteps: int) -> list[str]:
@@ -554,17 +558,18 @@ def negative_schedule_warnings(model: Any, total_timesteps: int) -> list[str]:
     step up the loss) or clip range. One line per such schedule, with the fix.
     """
     n_steps, n_envs = getattr(model, "n_steps", None), getattr(model, "n_envs", None)
-    if not isinstance(n_steps, int) or not isinstance(n_envs, int) or total_timesteps < 1:
+    if not isinstance(n_steps, int) or not isinstance(n_envs, int):
         return []  # off-policy: progress advances step by step and ends at zero
     rollout_steps = n_steps * n_envs
     progress = last_update_progress(total_timesteps, rollout_steps)
     lines = []
     for name, schedule in (("learning_rate", model.lr_schedule), ("clip_range", getattr(model, "clip_range", None))):
-        if callable(schedule) and float(schedule(progress)) < 0.0:
+        value = float(schedule(progress)) if callable(schedule) else 0.0
+        if value < 0.0:
             lines.append(
-                f"{name} is {float(schedule(progress)):.3g} at the last update (progress {progress:.4f}): "
+                f"{name} is {value:.3g} at the last update (progress {progress:.4f}): "
                 f"pass --timesteps as a multiple of n_steps * n_envs = {rollout_steps} "
-                f"(e.g. {-(-total_timesteps // rollout_steps) * rollout_steps})"
+                f"(e.g. {_last_update_step(total_timesteps, rollout_steps)})"
             )
     return lines
 

@@ -204,6 +204,8 @@ def test_a_decaying_schedule_that_would_turn_negative_is_reported(tmp_path, capf
     assert f"{3e-4 * (1 - 512 / 300):.3g}" in lines[0] and "e.g. 512" in lines[0]
     assert "agents.train: learning_rate is" in capfd.readouterr().err
     assert negative_schedule_warnings(model, 512) == []  # a whole number of rollouts ends at zero
+    with pytest.raises(ValueError, match="total_timesteps"):
+        negative_schedule_warnings(model, 0)
     _, constant = prepare(build_parser().parse_args([*SMALL, "--out", str(tmp_path / "c"), "--timesteps", "300"]))
     assert negative_schedule_warnings(constant, 300) == []
 

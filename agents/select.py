@@ -23,6 +23,15 @@ chosen from what, on which seeds, with the figures); and to ``--out``:
 ``selection.md``, one table per run with each candidate's mean and paired
 difference to the best baseline. The callback's own choice rests on its 10 to
 30 episodes; on 100 it is often not the best (``docs/benchmark.md``).
+
+``--best-of-runs DIR`` also keeps one model for the runs together: the run
+whose chosen candidate has the lowest validation mean (ties go to the run
+given first), copied to ``DIR/selected/`` as above, its ``selection.json``
+naming the runs it was chosen from. A recipe that trains several runs per
+training seed and keeps the best on validation (``docs/experiments.md``,
+"best of two runs") is this one call per training seed::
+
+    python -m agents.select runs/r2_31_a runs/r2_31_b --env SeifExploreClusteredBudget-v2 --best-of-runs runs/r2_31
 """
 
 from __future__ import annotations
@@ -50,7 +59,15 @@ from agents.parallel import Executor
 from agents.parallel import add_arguments as add_executor_arguments
 from agents.parallel import from_arguments as executor_from_arguments
 
-__all__ = ["Candidate", "candidates", "main", "save_selected", "select_checkpoints", "selection_table"]
+__all__ = [
+    "Candidate",
+    "best_of_runs",
+    "candidates",
+    "main",
+    "save_selected",
+    "select_checkpoints",
+    "selection_table",
+]
 
 _CHECKPOINT = re.compile(r"rl_model_(?P<steps>\d+)_steps\.zip")
 
@@ -200,6 +217,21 @@ def select_checkpoints(
     return selection, rows, summary
 
 
+def best_of_runs(selection: Mapping[str, Mapping[str, Any]]) -> tuple[str, Mapping[str, Any]]:
+    """The run of ``selection`` (:func:`select_checkpoints`' first result) whose chosen candidate is lowest.
+
+    Ties go to the run that comes first in ``selection`` (the order the runs were given).
+
+    Raises
+    ------
+    ValueError
+        If ``selection`` is empty.
+    """
+    if not selection:
+        raise ValueError("selection: no run to choose from")
+    return min(selection.items(), key=lambda item: item[1]["mean"])  # min keeps the first of equal means
+
+
 def save_selected(run: str | Path, choice: Mapping[str, Any], provenance: Mapping[str, Any]) -> Path:
     """Copy the chosen model (and its statistics) to ``run/selected/`` with ``selection.json``; returns the model.
 
@@ -272,6 +304,12 @@ def _parser() -> argparse.ArgumentParser:
         "--baselines", default="info_gain", help="comma-separated baselines to pair with (default info_gain)"
     )
     parser.add_argument("--out", default="selection", help="folder of the evaluation's outputs (default ./selection)")
+    parser.add_argument(
+        "--best-of-runs",
+        default=None,
+        metavar="DIR",
+        help="also copy the lowest of the runs' chosen models to DIR/selected/ (one model for all the runs)",
+    )
     parser.add_argument("--quiet", action="store_true", help="no progress on stderr")
     add_executor_arguments(parser)
     return parser
@@ -283,6 +321,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = parser.parse_args(argv)
     baselines = [b.strip() for b in args.baselines.split(",") if b.strip()]
     executor = executor_from_arguments(args, parser)
+    if args.best_of_runs is not None and Path(args.best_of_runs).resolve() in {Path(r).resolve() for r in args.runs}:
+        parser.error("--best-of-runs: the folder must not be one of the runs")
     started = time.perf_counter()
     try:
         selection, rows, summary = select_checkpoints(
@@ -302,6 +342,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     print(f"{args.env}, validation seeds {args.seed}..{args.seed + args.episodes - 1}\n\n{table}")
     for run, choice in selection.items():
         print(f"{run}: chose {choice['chosen']} -> {save_selected(run, choice, provenance)}")
+    if args.best_of_runs is not None:
+        run, choice = best_of_runs(selection)
+        Path(args.best_of_runs).mkdir(parents=True, exist_ok=True)
+        kept = save_selected(args.best_of_runs, choice, {**provenance, "runs": list(selection), "run": run})
+        print(f"best of the runs: {choice['chosen']} ({choice['mean']:.3f}) -> {kept}")
     print(f"wrote {args.out}/ in {time.perf_counter() - started:.1f} s")
     return 0
 

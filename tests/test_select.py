@@ -13,7 +13,7 @@ import torch
 import seif_gym  # noqa: F401
 from agents.benchmark import HELD_OUT_SEED
 from agents.checkpoints import save_with_vecnormalize, vecnormalize_path
-from agents.select import candidates, main, save_selected, select_checkpoints
+from agents.select import best_of_runs, candidates, main, save_selected, select_checkpoints
 
 TINY = {"num_landmarks": 10, "max_episode_steps": 20}
 
@@ -176,4 +176,34 @@ def test_runs_without_models_or_twice_or_unknown_env_are_refused(run, tmp_path):
         candidates(3)  # type: ignore[arg-type]
     with pytest.raises(SystemExit):
         main([str(empty), "--env", "SeifExplore-v1"])
+    assert not (run / "selected").exists()
+
+
+def test_best_of_runs_keeps_the_run_whose_choice_is_lowest_the_first_given_on_a_tie(run, tmp_path):
+    import shutil
+
+    twin = tmp_path / "run_b"  # the same models as run_a: a tie, which goes to the run given first
+    shutil.copytree(run, twin)
+    straight = tmp_path / "run_c"  # only the checkpoint that drives straight, which maps less here
+    straight.mkdir()
+    for name in ("rl_model_300_steps.zip", "rl_model_vecnormalize_300_steps.pkl"):
+        shutil.copyfile(run / name, straight / name)
+    kept = tmp_path / "r2_seed"
+    argv = [str(straight), str(twin), str(run), "--env", "SeifExplore-v1", "--env-kwargs", json.dumps(TINY)]
+    argv += ["--episodes", "3", "--seed", "7", "--out", str(tmp_path / "sel"), "--quiet", "--best-of-runs", str(kept)]
+    assert main(argv) == 0
+    chosen = {r: json.loads((r / "selected" / "selection.json").read_text()) for r in (straight, twin, run)}
+    assert chosen[straight]["mean"] > chosen[twin]["mean"] == chosen[run]["mean"]
+    record = json.loads((kept / "selected" / "selection.json").read_text())
+    assert record["run"] == str(twin) and record["runs"] == [str(straight), str(twin), str(run)]
+    assert record["chosen"] == chosen[twin]["chosen"] and record["mean"] == chosen[twin]["mean"]
+    assert (kept / "selected" / "model.zip").read_bytes() == (twin / "selected" / "model.zip").read_bytes()
+    assert vecnormalize_path(kept / "selected" / "model.zip") == kept / "selected" / "vecnormalize.pkl"
+
+
+def test_best_of_runs_refuses_nothing_to_choose_and_a_run_as_its_folder(run):
+    with pytest.raises(ValueError, match="selection"):
+        best_of_runs({})
+    with pytest.raises(SystemExit):
+        main([str(run), "--env", "SeifExplore-v1", "--best-of-runs", str(run)])
     assert not (run / "selected").exists()

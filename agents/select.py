@@ -343,10 +343,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     for run, choice in selection.items():
         print(f"{run}: chose {choice['chosen']} -> {save_selected(run, choice, provenance)}")
     if args.best_of_runs is not None:
-        run, choice = best_of_runs(selection)
+        best_run, best = best_of_runs(selection)
         Path(args.best_of_runs).mkdir(parents=True, exist_ok=True)
-        kept = save_selected(args.best_of_runs, choice, {**provenance, "runs": list(selection), "run": run})
-        print(f"best of the runs: {choice['chosen']} ({choice['mean']:.3f}) -> {kept}")
+        kept = save_selected(args.best_of_runs, best, {**provenance, "runs": list(selection), "run": best_run})
+        print(f"best of the runs: {best['chosen']} ({best['mean']:.3f}) -> {kept}")
     print(f"wrote {args.out}/ in {time.perf_counter() - started:.1f} s")
     return 0
 

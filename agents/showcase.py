@@ -29,6 +29,7 @@ from pathlib import Path
 from typing import Any
 
 import gymnasium as gym
+import numpy as np
 
 import seif_gym  # noqa: F401  (registers the envs)
 from agents import BASELINES
@@ -54,10 +55,12 @@ def record_gif(policy_path: Path, path: Path, seed: int, every: int = 4, size: i
     observation, _ = env.reset(seed=seed)
     frames: list[Any] = [env.render()]
     done, step = False, 0
+    state, start = None, True  # a recurrent policy's memory, carried as agents.evaluate.run_episode does
     limit = env.spec.max_episode_steps if env.spec is not None and env.spec.max_episode_steps else 1
     with Progress(int(limit), f"{path.name}", enabled=verbose, unit="steps") as progress:
         while not done:
-            action, _ = agent.predict(observation, deterministic=True)
+            action, state = agent.predict(observation, state=state, episode_start=np.array([start]), deterministic=True)
+            start = False
             observation, _, terminated, truncated, _ = env.step(action)
             done = terminated or truncated
             step += 1

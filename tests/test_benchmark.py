@@ -28,8 +28,11 @@ def test_default_variants_are_every_layout_of_a_version():
 
 def test_shipped_policy_fits_the_default_variant():
     assert benchmark.policy_fits(benchmark.SHIPPED_POLICIES["ppo"], "SeifExplore-v1")
-    for policy in benchmark.SHIPPED_POLICIES.values():  # and each fits the variant it was trained on
-        assert benchmark.policy_fits(policy, policy.trained_on)
+    for policy in benchmark.SHIPPED_POLICIES.values():  # and each fits the variant it was trained on and its task
+        assert benchmark.policy_fits(policy, policy.trained_on) and benchmark.policy_fits(policy, policy.task)
+    ring = benchmark.SHIPPED_POLICIES["ppo_lstm_clustered_budget_v2"]
+    assert ring.task == ring.chosen_for == "SeifExploreClusteredBudget-v2" != ring.trained_on
+    assert benchmark.SHIPPED_POLICIES["ppo"].task == "SeifExplore-v0"  # no chosen_for: its training task
 
 
 def test_policy_fits_reads_a_recurrent_policy(tmp_path):
@@ -87,7 +90,9 @@ def test_held_out_episodes_are_400_on_the_short_tasks_and_100_on_the_others():
     assert benchmark.held_out_episodes("SeifExplore-v2") == 100  # 400 steps
     assert benchmark.held_out_episodes("SeifExploreLarge-v2") == 100
     longest = max(benchmark.held_out_episodes(env_id) for env_id in seif_gym.VARIANTS)
-    assert benchmark.HELD_OUT_SEEDS == range(benchmark.HELD_OUT_SEED, benchmark.HELD_OUT_SEED + longest)
+    assert longest < benchmark.DECLARED_HELD_OUT_EPISODES == 1600  # a declared experiment's count reaches further
+    first = benchmark.HELD_OUT_SEED
+    assert benchmark.HELD_OUT_SEEDS == range(first, first + benchmark.DECLARED_HELD_OUT_EPISODES)
     with pytest.raises(ValueError, match="env_id: unknown env 'Nope-v0'"):
         benchmark.held_out_episodes("Nope-v0")
     with pytest.raises(TypeError, match="env_id must be a str"):

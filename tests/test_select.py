@@ -147,6 +147,7 @@ def test_a_choice_that_fails_midway_leaves_the_earlier_one_as_it_was(run, monkey
         ({"seed": HELD_OUT_SEED - 50}, "held-out"),
         ({"seed": HELD_OUT_SEED + 99}, "held-out"),
         ({"seed": HELD_OUT_SEED + 399}, "held-out"),  # the short tasks' held-out split
+        ({"seed": HELD_OUT_SEED + 1599}, "held-out"),  # what a declared experiment may hold out
         ({"episodes": 0}, "episodes"),
         ({"seed": -1}, "seed"),
         ({"baselines": ("greedy",)}, "baselines"),

@@ -78,6 +78,7 @@ def _same_weights(a: dict[str, torch.Tensor], b: dict[str, torch.Tensor]) -> boo
     [
         ("ppo", "SeifExplore-v0", SHIPPED_POLICY),
         ("ppo_lstm", "SeifExploreLoopBudget-v2", POLICIES / "ppo_lstm_loop_budget_v2.zip"),
+        ("ppo_lstm", "SeifExploreLoopBudget-v2", POLICIES / "ppo_lstm_clustered_budget_v2.zip"),
     ],
 )
 def test_config_entry_is_the_shipped_policys_recipe(algo, env_id, path):
@@ -530,19 +531,14 @@ def test_init_from_the_shipped_policy(tmp_path):
 
 # -- the shipped policies ----------------------------------------------------------------------------
 def final_map_errors(agent, seeds, env_id: str = "SeifExplore-v0") -> list[float]:
+    """Each episode as the evaluation runs it (``agents.evaluate.run_episode``: a recurrent policy's state carried)."""
+    from agents.evaluate import run_episode
+
     env = gym.make(env_id)
-    errors = []
-    for seed in seeds:
-        observation, info = env.reset(seed=seed)
-        agent.reset()  # a new episode (a policy with the budget's clock restarts it)
-        done = False
-        while not done:
-            action, _ = agent.predict(observation, deterministic=True)
-            observation, _, terminated, truncated, info = env.step(action)
-            done = terminated or truncated
-        errors.append(info["map_error"])
-    env.close()
-    return errors
+    try:
+        return [run_episode(agent, env, seed)[0]["final_map_error"] for seed in seeds]
+    finally:
+        env.close()
 
 
 def test_shipped_policy_loads_and_beats_random_on_ten_seeds():
@@ -559,15 +555,15 @@ def test_shipped_policy_loads_and_beats_random_on_ten_seeds():
 
 @pytest.mark.parametrize("label", [label for label in SHIPPED_POLICIES if label != "ppo"])
 def test_every_shipped_explorer_loads_and_beats_random_on_its_variant(label):
-    """Each policy of ``agents.benchmark.SHIPPED_POLICIES`` (``ppo``: the test above), on five seeds of its variant."""
+    """Each policy of ``agents.benchmark.SHIPPED_POLICIES`` (``ppo``: the test above), on five seeds of its task."""
     policy = SHIPPED_POLICIES[label]
     assert policy.path.exists(), f"the shipped policy {policy.path} is missing"
-    env = gym.make(policy.trained_on)
+    env = gym.make(policy.task)  # the task it is shipped for (chosen on), which may not be the one it trained on
     agent = SB3Agent(policy.path, env=env)
     assert agent.vecnormalize is not None or vecnormalize_path(policy.path) is None  # its statistics, if any, load
     seeds = range(2000, 2005)
-    learned = final_map_errors(agent, seeds, policy.trained_on)
-    random = final_map_errors(make_agent("random", env, seed=0), seeds, policy.trained_on)
+    learned = final_map_errors(agent, seeds, policy.task)
+    random = final_map_errors(make_agent("random", env, seed=0), seeds, policy.task)
     assert max(learned) < np.mean(random), (learned, random)
 
 

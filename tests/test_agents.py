@@ -560,3 +560,31 @@ def test_showcase_takes_the_protocol_episode_count_of_its_env(capsys) -> None:
     with pytest.raises(SystemExit):
         showcase_main(["--env", "Nope-v0"])  # the protocol's count is looked up before anything runs
     assert "--env: env_id: unknown env 'Nope-v0'" in capsys.readouterr().err
+
+
+def test_showcase_gif_runs_a_recurrent_policy_with_its_memory(tmp_path, monkeypatch) -> None:
+    """The GIF's episode is the evaluation's: the same actions, the LSTM's state carried from step to step."""
+    from agents.benchmark import SHIPPED_POLICIES
+    from agents.evaluate import SB3Agent, run_episode
+    from agents.showcase import record_gif
+
+    policy = SHIPPED_POLICIES["ppo_lstm_clustered_budget_v2"]
+    actions: list[np.ndarray] = []
+    predict = SB3Agent.predict
+
+    def logged(self, observation, state=None, episode_start=None, deterministic=True):
+        action, new_state = predict(
+            self, observation, state=state, episode_start=episode_start, deterministic=deterministic
+        )
+        actions.append(np.array(action))
+        return action, new_state
+
+    monkeypatch.setattr(SB3Agent, "predict", logged)
+    env = gym.make(policy.task)
+    run_episode(SB3Agent(policy.path, env=env), env, seed=3)
+    env.close()
+    evaluated, actions[:] = list(actions), []
+    gif = record_gif(policy.path, tmp_path / "episode.gif", seed=3, every=25, size=64, env_id=policy.task)
+    assert gif.stat().st_size > 0
+    assert len(actions) == len(evaluated) == gym.spec(policy.task).max_episode_steps
+    assert all(np.array_equal(a, b) for a, b in zip(actions, evaluated, strict=True))

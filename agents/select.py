@@ -224,9 +224,16 @@ def best_of_runs(selection: Mapping[str, Mapping[str, Any]]) -> tuple[str, Mappi
 
     Raises
     ------
+    TypeError
+        If ``selection`` is not a mapping.
     ValueError
-        If ``selection`` is empty.
+        If ``selection`` is empty, or a run's entry has no ``"mean"``.
     """
+    if not isinstance(selection, Mapping):
+        raise TypeError(f"selection must be a mapping of run -> choice, got {type(selection).__name__}")
+    missing = [run for run, choice in selection.items() if "mean" not in choice]
+    if missing:
+        raise ValueError(f"selection: no validation mean for {missing}")
     if not selection:
         raise ValueError("selection: no run to choose from")
     return min(selection.items(), key=lambda item: item[1]["mean"])  # min keeps the first of equal means
@@ -320,9 +327,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser = _parser()
     args = parser.parse_args(argv)
     baselines = [b.strip() for b in args.baselines.split(",") if b.strip()]
-    executor = executor_from_arguments(args, parser)
     if args.best_of_runs is not None and Path(args.best_of_runs).resolve() in {Path(r).resolve() for r in args.runs}:
-        parser.error("--best-of-runs: the folder must not be one of the runs")
+        parser.error("--best-of-runs: the folder must not be one of the runs")  # before any worker starts
+    executor = executor_from_arguments(args, parser)
     started = time.perf_counter()
     try:
         selection, rows, summary = select_checkpoints(

@@ -205,6 +205,10 @@ def test_best_of_runs_keeps_the_run_whose_choice_is_lowest_the_first_given_on_a_
 def test_best_of_runs_refuses_nothing_to_choose_and_a_run_as_its_folder(run):
     with pytest.raises(ValueError, match="selection"):
         best_of_runs({})
+    with pytest.raises(ValueError, match="no validation mean"):
+        best_of_runs({"runs/a": {"chosen": "a:100"}})
+    with pytest.raises(TypeError, match="selection must be a mapping"):
+        best_of_runs([("runs/a", {"mean": 0.3})])  # type: ignore[arg-type]
     with pytest.raises(SystemExit):
         main([str(run), "--env", "SeifExplore-v1", "--best-of-runs", str(run)])
     assert not (run / "selected").exists()

@@ -99,6 +99,21 @@ def test_held_out_episodes_are_400_on_the_short_tasks_and_100_on_the_others():
         benchmark.held_out_episodes(5)
 
 
+def test_a_declared_count_is_1600_on_the_short_tasks_and_400_on_the_others_within_the_held_out_seeds():
+    assert benchmark.declared_held_out_episodes("SeifExploreClusteredBudget-v2") == 1600
+    assert benchmark.declared_held_out_episodes("SeifExploreBudget-v2") == 1600
+    assert benchmark.declared_held_out_episodes("SeifExploreLoop-v2") == 400  # 400 steps
+    assert benchmark.declared_held_out_episodes("SeifExploreLarge-v2") == 400
+    for env_id in seif_gym.VARIANTS:
+        declared = benchmark.declared_held_out_episodes(env_id)
+        assert declared > benchmark.held_out_episodes(env_id)  # reaches beyond the leaderboard's seeds
+        assert benchmark.HELD_OUT_SEED + declared - 1 in benchmark.HELD_OUT_SEEDS  # so agents.select refuses them all
+    with pytest.raises(ValueError, match="env_id: unknown env 'Nope-v0'"):
+        benchmark.declared_held_out_episodes("Nope-v0")
+    with pytest.raises(TypeError, match="env_id must be a str"):
+        benchmark.declared_held_out_episodes(None)
+
+
 def test_run_benchmark_runs_each_variant_on_its_protocol_count(tmp_path, monkeypatch):
     counts = {}
 

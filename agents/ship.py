@@ -1,0 +1,203 @@
+"""Ship a chosen model into ``agents/policies``: the weights, their statistics and the recipe's record.
+
+Usage::
+
+    python -m agents.ship RUN/selected/model.zip NAME --config RUN/<EnvId>/config.yml
+
+writes
+
+==============================  =================================================================
+``agents/policies/NAME.zip``    the model, its optimizer's moments emptied (see below)
+``NAME/vecnormalize.pkl``       the model's ``VecNormalize`` statistics, where
+                                :func:`agents.checkpoints.vecnormalize_path` finds them
+``NAME/config.yml``             ``--config``: rl-zoo3's record of the hyperparameters that trained it
+``NAME/selection.json``         the model folder's ``selection.json`` if it has one
+                                (``agents.select``: what was chosen from what, on which seeds)
+==============================  =================================================================
+
+An SB3 ``.zip`` carries the Adam optimizer's state with the weights; its
+first and second moments are twice the weights' size and only matter for
+going on training. Shipping keeps the optimizer's parameter groups (so
+``--init-from`` still loads the model; its Adam restarts from zero moments)
+and empties the moments: a recurrent policy of the benchmark is 4.7 MB
+instead of 14. Acting is unchanged (the test loads both and compares actions).
+
+A name already shipped is refused unless ``--force``; nothing is written
+until every input has been read, and a failure midway leaves
+``agents/policies`` as it was. Registering the policy for the leaderboard
+(``agents.benchmark.SHIPPED_POLICIES``) stays a reviewed edit of the code.
+"""
+
+from __future__ import annotations
+
+import argparse
+import io
+import os
+import re
+import shutil
+import sys
+import tempfile
+import zipfile
+from collections.abc import Sequence
+from pathlib import Path
+
+from agents.benchmark import POLICY_DIR
+from agents.checkpoints import vecnormalize_path
+
+__all__ = ["OPTIMIZER_ENTRY", "empty_optimizer_moments", "main", "ship"]
+
+#: The member of an SB3 ``.zip`` that holds the optimizer's ``state_dict``.
+OPTIMIZER_ENTRY = "policy.optimizer.pth"
+_NAME = re.compile(r"[a-z][a-z0-9_]*")
+
+
+def empty_optimizer_moments(model_zip: bytes) -> bytes:
+    """The SB3 model archive ``model_zip`` with its optimizer's per-parameter state emptied.
+
+    Parameters
+    ----------
+    model_zip : bytes
+        The bytes of a saved SB3 model (``model.save``).
+
+    Returns
+    -------
+    bytes
+        The same archive, member for member, except ``policy.optimizer.pth``, whose
+        ``state`` (Adam's step counts and moments) is ``{}``; its ``param_groups`` stay.
+
+    Raises
+    ------
+    TypeError
+        If ``model_zip`` is not bytes.
+    ValueError
+        If it is not a zip archive holding ``policy.optimizer.pth``.
+    """
+    import torch
+
+    if not isinstance(model_zip, (bytes, bytearray)):
+        raise TypeError(f"model_zip must be bytes, got {type(model_zip).__name__}")
+    try:
+        source = zipfile.ZipFile(io.BytesIO(model_zip))
+    except zipfile.BadZipFile:
+        raise ValueError("model_zip: not a zip archive") from None
+    with source:
+        if OPTIMIZER_ENTRY not in source.namelist():
+            raise ValueError(f"model_zip: no {OPTIMIZER_ENTRY} (not an SB3 model)")
+        out = io.BytesIO()
+        with zipfile.ZipFile(out, "w", zipfile.ZIP_DEFLATED) as target:
+            for item in source.infolist():
+                data = source.read(item.filename)
+                if item.filename == OPTIMIZER_ENTRY:
+                    state = torch.load(io.BytesIO(data), map_location="cpu", weights_only=True)
+                    state["state"] = {}
+                    buffer = io.BytesIO()
+                    torch.save(state, buffer)
+                    data = buffer.getvalue()
+                target.writestr(item, data)
+    return out.getvalue()
+
+
+def _check_path(value: object, name: str) -> Path:
+    if not isinstance(value, (str, os.PathLike)):
+        raise TypeError(f"{name} must be a path, got {type(value).__name__}")
+    path = Path(value)
+    if not path.is_file():
+        raise ValueError(f"{name}: no file {str(path)!r}")
+    return path
+
+
+def ship(
+    model: str | os.PathLike,
+    name: str,
+    *,
+    config: str | os.PathLike,
+    policy_dir: str | os.PathLike = POLICY_DIR,
+    force: bool = False,
+) -> Path:
+    """Copy ``model`` into ``policy_dir`` as ``name``; returns the shipped ``.zip``'s path.
+
+    Parameters
+    ----------
+    model : str or PathLike
+        A saved SB3 model (``.zip``) with its ``VecNormalize`` statistics beside it
+        (:func:`agents.checkpoints.vecnormalize_path`), e.g. ``RUN/selected/model.zip``.
+    name : str
+        The policy's name: lower case letters, digits and ``_``, starting with a letter.
+    config : str or PathLike
+        The recipe's configuration (rl-zoo3's ``RUN/<EnvId>/config.yml``), copied as it is.
+    policy_dir : str or PathLike
+        Where shipped policies live (``agents/policies``).
+    force : bool
+        Replace a policy of the same name.
+
+    Raises
+    ------
+    TypeError
+        If an argument has the wrong type.
+    ValueError
+        If ``name`` is not a valid name or is shipped already (without ``force``), if
+        ``model`` or ``config`` is missing, if ``model`` has no statistics or is not an SB3 model.
+    """
+    if not isinstance(name, str):
+        raise TypeError(f"name must be a str, got {type(name).__name__}")
+    if not _NAME.fullmatch(name):
+        raise ValueError(f"name: {name!r} is not lower case letters, digits and '_' starting with a letter")
+    if not isinstance(force, bool):
+        raise TypeError(f"force must be a bool, got {type(force).__name__}")
+    model_path = _check_path(model, "model")
+    if model_path.suffix != ".zip":
+        raise ValueError(f"model must name a model's .zip, got {str(model_path)!r}")
+    config_path = _check_path(config, "config")
+    if not isinstance(policy_dir, (str, os.PathLike)):
+        raise TypeError(f"policy_dir must be a path, got {type(policy_dir).__name__}")
+    policy_dir = Path(policy_dir)
+    if not policy_dir.is_dir():
+        raise ValueError(f"policy_dir: no folder {str(policy_dir)!r}")
+    target_zip, target_dir = policy_dir / f"{name}.zip", policy_dir / name
+    if not force and (target_zip.exists() or target_dir.exists()):
+        raise ValueError(f"name: {name!r} is shipped already in {str(policy_dir)!r} (force=True replaces it)")
+    stats_path = vecnormalize_path(model_path)
+    if stats_path is None:
+        raise ValueError(f"model: no VecNormalize statistics beside {str(model_path)!r}")
+    # Read and transform everything before the first write, in a staging folder beside the target.
+    weights = empty_optimizer_moments(model_path.read_bytes())
+    selection = model_path.with_name("selection.json")
+    staging = Path(tempfile.mkdtemp(prefix=f".{name}.", dir=policy_dir))
+    try:
+        (staging / name).mkdir()
+        shutil.copyfile(stats_path, staging / name / "vecnormalize.pkl")
+        shutil.copyfile(config_path, staging / name / "config.yml")
+        if selection.is_file():
+            shutil.copyfile(selection, staging / name / "selection.json")
+        (staging / f"{name}.zip").write_bytes(weights)
+        if target_dir.exists():
+            shutil.rmtree(target_dir)
+        os.replace(staging / name, target_dir)
+        os.replace(staging / f"{name}.zip", target_zip)
+    finally:
+        shutil.rmtree(staging, ignore_errors=True)
+    return target_zip
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Command-line entry point; returns the exit status."""
+    parser = argparse.ArgumentParser(
+        prog="python -m agents.ship",
+        description="Copy a chosen model, its statistics and its recipe's config into agents/policies.",
+    )
+    parser.add_argument("model", help="the chosen model (.zip), e.g. RUN/selected/model.zip")
+    parser.add_argument("name", help="the shipped policy's name (agents/policies/NAME.zip)")
+    parser.add_argument("--config", required=True, help="the recipe's rl-zoo3 config.yml (RUN/<EnvId>/config.yml)")
+    parser.add_argument("--policy-dir", default=str(POLICY_DIR), help="where to ship (default agents/policies)")
+    parser.add_argument("--force", action="store_true", help="replace a policy of the same name")
+    args = parser.parse_args(argv)
+    try:
+        shipped = ship(args.model, args.name, config=args.config, policy_dir=args.policy_dir, force=args.force)
+    except (TypeError, ValueError) as error:
+        parser.error(str(error))
+    print(f"shipped {shipped} ({shipped.stat().st_size / 1e6:.1f} MB) and {shipped.with_suffix('')}/")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -145,10 +145,8 @@ def declared_held_out_episodes(env_id: str) -> int:
 
     Raises
     ------
-    TypeError
-        If ``env_id`` is not a string.
-    ValueError
-        If ``env_id`` is not registered.
+    TypeError, ValueError
+        As :func:`held_out_episodes`.
     """
     return DECLARED_HELD_OUT_EPISODES if _is_short_task(env_id) else LONG_TASK_DECLARED_HELD_OUT_EPISODES
 

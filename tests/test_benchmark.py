@@ -33,6 +33,11 @@ def test_shipped_policy_fits_the_default_variant():
     ring = benchmark.SHIPPED_POLICIES["ppo_lstm_clustered_budget_v2"]
     assert ring.task == ring.chosen_for == "SeifExploreClusteredBudget-v2" != ring.trained_on
     assert benchmark.SHIPPED_POLICIES["ppo"].task == "SeifExplore-v0"  # no chosen_for: its training task
+    for policy in benchmark.SHIPPED_POLICIES.values():  # agents.ship's record of the choice names the same task
+        record = policy.path.with_suffix("") / "selection.json"
+        if record.is_file():
+            assert json.loads(record.read_text())["env_id"] == policy.task, policy.path.name
+    assert (benchmark.POLICY_DIR / "ppo_lstm_loop_v2" / "selection.json").is_file()
 
 
 def test_policy_fits_reads_a_recurrent_policy(tmp_path):

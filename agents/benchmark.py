@@ -96,8 +96,8 @@ SHORT_TASK_HELD_OUT_EPISODES = 400
 #: The most any experiment may declare.
 DECLARED_HELD_OUT_EPISODES = 1600
 #: Held-out episodes an experiment may declare on a task longer than :data:`SHORT_TASK_STEPS`
-#: (the leaderboard's 100 resolve leads of about 0.045 m there; 400 about 0.023 m, at four
-#: times the cost: a 400-step episode costs what four of the budgets' do).
+#: (with the 400-step loop's per-episode spread of paired differences, 0.23 m, the
+#: leaderboard's 100 resolve leads of about 0.045 m; 400 about 0.023 m, at four times the cost).
 LONG_TASK_DECLARED_HELD_OUT_EPISODES = 400
 #: Every held-out seed of the protocol (the most any task or declared experiment uses): nothing may be chosen on them.
 HELD_OUT_SEEDS = range(

@@ -170,10 +170,25 @@ def ship(
         if selection.is_file():
             shutil.copyfile(selection, staging / name / "selection.json")
         (staging / f"{name}.zip").write_bytes(weights)
-        if target_dir.exists():
-            shutil.rmtree(target_dir)
-        os.replace(staging / name, target_dir)
-        os.replace(staging / f"{name}.zip", target_zip)
+        # a replaced policy is set aside, not deleted, until both new parts are in place
+        old = staging / "replaced"
+        old.mkdir()
+        moved = [(target, old / target.name) for target in (target_dir, target_zip) if target.exists()]
+        try:
+            for target, kept in moved:
+                os.replace(target, kept)
+            os.replace(staging / name, target_dir)
+            os.replace(staging / f"{name}.zip", target_zip)
+        except BaseException:
+            for target in (target_dir, target_zip):
+                if target.is_dir():
+                    shutil.rmtree(target)
+                elif target.exists():
+                    target.unlink()
+            for target, kept in moved:
+                if kept.exists():
+                    os.replace(kept, target)
+            raise
     finally:
         shutil.rmtree(staging, ignore_errors=True)
     return target_zip

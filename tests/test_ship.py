@@ -130,6 +130,19 @@ def test_a_failure_midway_leaves_the_policies_as_they_were(chosen, tmp_path, mon
         ship(chosen, "new_policy", config=config, policy_dir=policies)
     after = {str(p.relative_to(policies)): p.read_bytes() for p in policies.rglob("*") if p.is_file()}
     assert after == before
+    monkeypatch.undo()
+    replace = ship_module.os.replace
+
+    def failing_replace(source, target):
+        if Path(target) == policies / "tiny_policy.zip" and Path(source).parent.name != "replaced":
+            raise OSError("rename failed")  # the new folder is in place, the new weights are not
+        return replace(source, target)
+
+    monkeypatch.setattr(ship_module.os, "replace", failing_replace)
+    with pytest.raises(OSError, match="rename failed"):
+        ship(chosen, "tiny_policy", config=config, policy_dir=policies, force=True)
+    after = {str(p.relative_to(policies)): p.read_bytes() for p in policies.rglob("*") if p.is_file()}
+    assert after == before and sorted(p.name for p in policies.iterdir()) == ["tiny_policy", "tiny_policy.zip"]
 
 
 def test_empty_optimizer_moments_names_bad_archives():

@@ -29,13 +29,22 @@ True
 
 from __future__ import annotations
 
+import hashlib
+import io
+import json
 import os
 import pickle
 import re
+import zipfile
 from pathlib import Path
 from typing import Any
 
-__all__ = ["load_vecnormalize_stats", "save_with_vecnormalize", "vecnormalize_path"]
+import numpy as np
+
+__all__ = ["behaviour_fingerprint", "load_vecnormalize_stats", "save_with_vecnormalize", "vecnormalize_path"]
+
+#: The entries of a model's ``data`` that decide what its policy computes (besides the weights).
+_POLICY_DATA = ("policy_class", "policy_kwargs", "observation_space", "action_space")
 
 #: SB3's ``CheckpointCallback`` names: ``{prefix}_{steps}_steps.zip`` and ``{prefix}_vecnormalize_{steps}_steps.pkl``.
 _CHECKPOINT = re.compile(r"(?P<prefix>.+)_(?P<steps>\d+)_steps")
@@ -122,3 +131,58 @@ def load_vecnormalize_stats(stats_path: str | os.PathLike) -> Any:
         raise TypeError(f"stats_path must be a path, got {type(stats_path).__name__}")
     with open(stats_path, "rb") as handle:
         return pickle.load(handle)  # noqa: S301 (our own training output, as VecNormalize.load)
+
+
+def behaviour_fingerprint(model_path: str | os.PathLike) -> str:
+    """A digest of everything that decides the actions of the model at ``model_path`` when it is evaluated.
+
+    Two saves of one policy differ byte for byte when the training state saved
+    beside it differs (step count, last observation, episode buffer, optimizer), so
+    the digest is taken over what the policy computes with: the tensors of ``policy.pth`` (names, dtypes, shapes, values),
+    the policy's class, keyword arguments and spaces from the model's ``data``, and
+    the observation normalisation of the statistics :func:`vecnormalize_path` finds
+    (``obs_rms``, ``clip_obs``, ``epsilon``, the normalised keys) when they
+    normalise observations at all. Statistics that normalise only the reward, and no
+    statistics, are the same: evaluation never normalises rewards. Equal digests mean
+    the same deterministic actions on the same observations; the callback's best model
+    is often the run's final model or its last checkpoint, and ``agents.select`` scores
+    it once.
+
+    Raises
+    ------
+    TypeError
+        If ``model_path`` is not a path.
+    ValueError
+        If it does not end in ``.zip`` or is not a saved SB3 model.
+    """
+    path = _as_path(model_path)
+    import torch
+
+    digest = hashlib.sha256()
+    try:
+        with zipfile.ZipFile(path) as archive:
+            data = json.loads(archive.read("data"))
+            weights = torch.load(io.BytesIO(archive.read("policy.pth")), map_location="cpu", weights_only=True)
+    except (OSError, KeyError, zipfile.BadZipFile, ValueError) as error:
+        raise ValueError(f"model_path: {str(path)!r} is not a saved SB3 model ({error})") from error
+    for key in _POLICY_DATA:
+        digest.update(json.dumps([key, data.get(key)], sort_keys=True).encode())
+    for name in sorted(weights):
+        tensor = weights[name].detach().cpu().contiguous()
+        digest.update(f"{name}|{tensor.dtype}|{tuple(tensor.shape)}|".encode())
+        digest.update(tensor.numpy().tobytes() if tensor.dtype != torch.bfloat16 else tensor.float().numpy().tobytes())
+    stats_path = vecnormalize_path(path)
+    # a pickled VecNormalize without its venv: read its fields from __dict__ (getattr recurses into the venv)
+    stats = None if stats_path is None else vars(load_vecnormalize_stats(stats_path))
+    if stats is not None and stats.get("norm_obs"):
+        digest.update(repr(("obs", stats.get("clip_obs"), stats.get("epsilon"), stats.get("norm_obs_keys"))).encode())
+        obs_rms = stats["obs_rms"]
+        keyed: dict[str, Any] = obs_rms if isinstance(obs_rms, dict) else {"": obs_rms}  # Dict or Box spaces
+        for key in sorted(keyed):
+            moments = keyed[key]
+            digest.update(f"{key}|".encode())
+            digest.update(np.asarray(moments.mean, dtype=np.float64).tobytes())
+            digest.update(np.asarray(moments.var, dtype=np.float64).tobytes())
+    else:
+        digest.update(b"no observation normalisation")
+    return digest.hexdigest()

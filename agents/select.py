@@ -13,7 +13,9 @@ for every run folder it scores every candidate (each checkpoint
 the baselines on the same validation seeds, with
 :func:`agents.evaluate.evaluate_agents`, and chooses the candidate of lowest
 mean final map error (ties go to the earlier checkpoint). It refuses seeds
-that reach into the held-out ones.
+that reach into the held-out ones. A candidate with the same policy as an
+earlier one (the callback's best is often the final model or the last
+checkpoint, saved again) is scored once and shares its figures.
 
 Written, for each run, to ``RUN/selected/``: ``model.zip`` (a copy of the
 chosen candidate), its normalisation statistics as ``vecnormalize.pkl``
@@ -52,7 +54,7 @@ import numpy as np
 
 from agents import BASELINES
 from agents.benchmark import HELD_OUT_SEEDS, VALIDATION_EPISODES, VALIDATION_SEED
-from agents.checkpoints import vecnormalize_path
+from agents.checkpoints import behaviour_fingerprint, vecnormalize_path
 from agents.cli import json_object
 from agents.evaluate import PAIRED_METRIC, evaluate_agents, signed, write_outputs
 from agents.parallel import Executor
@@ -173,7 +175,11 @@ def select_checkpoints(
     Returns
     -------
     selection : dict
-        Run folder -> ``{"chosen", "path", "steps", "mean", "candidates": {label: mean}, "paired"}``.
+        Run folder -> ``{"chosen", "path", "steps", "mean", "candidates": {label: mean}, "paired",
+        "same_as"}``; ``same_as`` maps each candidate that acts exactly as an earlier one
+        (:func:`agents.checkpoints.behaviour_fingerprint`: the same weights, policy and observation
+        normalisation) to that one, whose episodes it shares: it is scored once, and since equal
+        means go to the earlier candidate the choice is the one scoring both would make.
     rows, summary
         :func:`agents.evaluate.evaluate_agents`' results of every candidate and baseline.
 
@@ -181,7 +187,8 @@ def select_checkpoints(
     ------
     TypeError, ValueError
         On a bad argument (named), before any episode runs: a run folder without models, the same
-        folder twice, an unknown baseline or env id, seeds in the held-out range.
+        folder twice, an unknown baseline or env id, seeds in the held-out range, a candidate that
+        is not a saved SB3 model.
     """
     _check_seeds(seed, episodes)
     if not isinstance(env_id, str):
@@ -198,8 +205,16 @@ def select_checkpoints(
         raise ValueError("runs: two run folders have the same name; their candidates' labels would clash")
     if any("=" in label or "," in label for label in labels):
         raise ValueError("runs: a run folder's name holds '=' or ',', which agent specs reserve")
-    specs = [*baselines, *(f"{c.label}={c.path}" for found in per_run.values() for c in found)]
+    # a candidate that acts as an earlier one (the callback's best is often the final model) is scored once
+    everyone = [c for found in per_run.values() for c in found]
+    first_of: dict[str, str] = {}
+    same_as: dict[str, str] = {}
+    for c in everyone:
+        same_as[c.label] = first_of.setdefault(behaviour_fingerprint(c.path), c.label)
+    scored = [c for c in everyone if same_as[c.label] == c.label]
+    specs = [*baselines, *(f"{c.label}={c.path}" for c in scored)]
     rows, summary = evaluate_agents(specs, episodes, seed, env_id, env_kwargs, verbose=verbose, executor=executor)
+    rows, summary = _with_duplicates(rows, summary, everyone, same_as, baselines)
     means = {label: float(entry[PAIRED_METRIC]["mean"]) for label, entry in summary["agents"].items()}
     paired = summary["paired"]["agents"]
     selection: dict[str, dict[str, Any]] = {}
@@ -213,8 +228,41 @@ def select_checkpoints(
             "mean": means[chosen.label],
             "candidates": {c.label: means[c.label] for c in found},
             "paired": paired.get(chosen.label),
+            "same_as": {c.label: same_as[c.label] for c in found if same_as[c.label] != c.label},
         }
     return selection, rows, summary
+
+
+def _with_duplicates(
+    rows: list[dict[str, Any]],
+    summary: dict[str, Any],
+    everyone: Sequence[Candidate],
+    same_as: Mapping[str, str],
+    baselines: Sequence[str],
+) -> tuple[list[dict[str, Any]], dict[str, Any]]:
+    """``rows`` and ``summary`` with every candidate, a duplicate carrying the figures of the one it acts as.
+
+    Rows and agents come in the order: baselines, then the candidates in ``everyone``'s order (the
+    order a run without duplicates is scored in), so the outputs keep their form; which candidate
+    was scored for which is in the selection's ``same_as``.
+    """
+    by_agent: dict[str, list[dict[str, Any]]] = {}
+    for row in rows:
+        by_agent.setdefault(row["agent"], []).append(row)
+    labels = [*baselines, *(c.label for c in everyone)]
+    source = {label: same_as.get(label, label) for label in labels}
+    all_rows = [{**row, "agent": label} for label in labels for row in by_agent[source[label]]]
+    specs = {c.label: f"{c.label}={c.path}" for c in everyone}
+    agents = {
+        label: {**summary["agents"][source[label]], **({"spec": specs[label]} if source[label] != label else {})}
+        for label in labels
+    }
+    paired_agents = summary["paired"]["agents"]
+    paired = {
+        **summary["paired"],
+        "agents": {label: paired_agents[source[label]] for label in labels if source[label] in paired_agents},
+    }
+    return all_rows, {**summary, "agents": agents, "paired": paired}
 
 
 def best_of_runs(selection: Mapping[str, Mapping[str, Any]]) -> tuple[str, Mapping[str, Any]]:
@@ -287,6 +335,8 @@ def selection_table(selection: Mapping[str, Mapping[str, Any]], summary: Mapping
         for label, mean in choice["candidates"].items():
             p = paired["agents"][label]
             mark = " (chosen)" if label == choice["chosen"] else ""
+            if label in choice.get("same_as", {}):
+                mark += f" (the policy of {choice['same_as'][label]}: scored once)"
             interval = f"{signed(p['mean'])} [{signed(p['ci95_low'])}, {signed(p['ci95_high'])}]"
             lines.append(f"| {label}{mark} | {mean:.3f} | {interval} | {p['verdict']} |")
         lines.append("")

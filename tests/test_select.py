@@ -12,7 +12,7 @@ import torch
 
 import seif_gym  # noqa: F401
 from agents.benchmark import HELD_OUT_SEED
-from agents.checkpoints import save_with_vecnormalize, vecnormalize_path
+from agents.checkpoints import behaviour_fingerprint, save_with_vecnormalize, vecnormalize_path
 from agents.select import best_of_runs, candidates, main, save_selected, select_checkpoints
 
 TINY = {"num_landmarks": 10, "max_episode_steps": 20}
@@ -212,3 +212,87 @@ def test_best_of_runs_refuses_nothing_to_choose_and_a_run_as_its_folder(run):
     with pytest.raises(SystemExit):
         main([str(run), "--env", "SeifExplore-v1", "--best-of-runs", str(run)])
     assert not (run / "selected").exists()
+
+
+def test_behaviour_fingerprint_is_the_policy_not_the_bytes(tmp_path):
+    from stable_baselines3.common.vec_env import VecNormalize
+
+    model = _model(tmp_path)
+    _drive(model, 1.0, 0.3)
+    first, _ = save_with_vecnormalize(model, tmp_path / "a" / "model.zip")
+    model.get_vec_normalize_env().ret_rms.mean = np.array(5.0)  # reward statistics act on nothing evaluated
+    model.num_timesteps += 64  # training state saved beside the policy: the bytes differ, the policy not
+    again, _ = save_with_vecnormalize(model, tmp_path / "b" / "model.zip")
+    bare = tmp_path / "c" / "model.zip"
+    model.save(bare)  # no statistics: with norm_obs=False the same observations reach the policy
+    assert first.read_bytes() != again.read_bytes()
+    assert behaviour_fingerprint(first) == behaviour_fingerprint(again) == behaviour_fingerprint(bare)
+    _drive(model, 1.0, 0.3 + 1e-6)
+    other, _ = save_with_vecnormalize(model, tmp_path / "d" / "model.zip")
+    assert behaviour_fingerprint(other) != behaviour_fingerprint(first)
+
+    # statistics that normalise observations are part of the policy
+    normalised = VecNormalize(model.get_env().venv, norm_obs=True)
+    model.set_env(normalised)
+    _drive(model, 1.0, 0.3)
+    e, _ = save_with_vecnormalize(model, tmp_path / "e" / "model.zip")
+    key = next(iter(normalised.obs_rms))
+    normalised.obs_rms[key].mean = normalised.obs_rms[key].mean + 0.5
+    f, _ = save_with_vecnormalize(model, tmp_path / "f" / "model.zip")
+    assert len({behaviour_fingerprint(first), behaviour_fingerprint(e), behaviour_fingerprint(f)}) == 3
+    model.get_env().close()
+
+    with pytest.raises(TypeError, match="model_path"):
+        behaviour_fingerprint(3)
+    with pytest.raises(ValueError, match="model_path"):
+        behaviour_fingerprint(tmp_path / "model.pkl")
+    (tmp_path / "junk.zip").write_bytes(b"not a zip")
+    with pytest.raises(ValueError, match="model_path"):
+        behaviour_fingerprint(tmp_path / "junk.zip")
+
+
+def test_a_candidate_with_an_earlier_ones_policy_is_scored_once_and_shares_its_figures(run, monkeypatch):
+    import agents.select as select_module
+    from agents.evaluate import evaluate_agents
+
+    scored: list[list[str]] = []
+
+    def recording(specs, *args, **kwargs):
+        scored.append([spec.split("=")[0] for spec in specs])
+        return evaluate_agents(specs, *args, **kwargs)
+
+    monkeypatch.setattr(select_module, "evaluate_agents", recording)
+    selection, rows, summary = select_checkpoints([run], "SeifExplore-v1", TINY, episodes=2, seed=7)
+    # the fixture's 300-step checkpoint, best and final hold one policy (best has its own statistics,
+    # final none: with norm_obs=False neither changes what the policy sees)
+    assert scored == [["info_gain", "run_a:100", "run_a:200", "run_a:300"]]
+    choice = selection[str(run)]
+    assert choice["same_as"] == {"run_a:best": "run_a:300", "run_a:final": "run_a:300"}
+    labels = ["info_gain", "run_a:100", "run_a:200", "run_a:300", "run_a:best", "run_a:final"]
+    assert list(summary["agents"]) == labels
+    assert [row["agent"] for row in rows] == [label for label in labels for _ in range(2)]
+    assert summary["agents"]["run_a:best"]["spec"] == f"run_a:best={run / 'best_map_error' / 'model.zip'}"
+    assert summary["paired"]["agents"]["run_a:final"] == summary["paired"]["agents"]["run_a:300"]
+    assert choice["candidates"]["run_a:best"] == choice["candidates"]["run_a:300"]
+
+    # the premise, checked: scored on their own, the three give the same episodes to the last bit
+    alone, _ = evaluate_agents(
+        [f"300={run / 'rl_model_300_steps.zip'}", f"best={run / 'best_map_error' / 'model.zip'}",
+         f"final={run / 'SeifExplore-v1.zip'}"], 2, 7, "SeifExplore-v1", TINY,
+    )  # fmt: skip
+    errors = {}
+    for row in alone:
+        errors.setdefault(row["agent"], []).append(row["final_map_error"])
+    assert errors["300"] == errors["best"] == errors["final"]
+    shared = [row["final_map_error"] for row in rows if row["agent"] == "run_a:best"]
+    assert shared == errors["best"]
+
+
+def test_the_table_names_the_candidate_a_duplicate_was_scored_as(run, tmp_path):
+    argv = [str(run), "--env", "SeifExplore-v1", "--env-kwargs", json.dumps(TINY), "--episodes", "1", "--seed", "3"]
+    assert main([*argv, "--out", str(tmp_path / "sel"), "--quiet"]) == 0
+    table = (tmp_path / "sel" / "selection.md").read_text()
+    for duplicate in ("run_a:best", "run_a:final"):  # never chosen: the earlier candidate wins the tie
+        assert f"| {duplicate} (the policy of run_a:300: scored once) |" in table
+    record = json.loads((run / "selected" / "selection.json").read_text())
+    assert record["same_as"] == {"run_a:best": "run_a:300", "run_a:final": "run_a:300"}

@@ -3,7 +3,8 @@
 Usage::
 
     python -m agents.benchmark [--variants SeifExplore,SeifExploreLoop,...] [--version 1]
-        [--episodes N] [--seed 1000000] [--agents ...] [--jobs 2] [--out benchmark] [--quiet]
+        [--episodes N] [--seed 1000000] [--agents ...] [--jobs 2 | --workers 16 | --ray auto]
+        [--out benchmark] [--quiet]
 
 The protocol is in ``docs/benchmark.md``: each variant is run on the same
 *held-out* seeds ``seed … seed + episodes − 1`` (default 1 000 000 …
@@ -52,6 +53,8 @@ import seif_gym
 from agents import BASELINES
 from agents.evaluate import evaluate_agents, sb3_algorithm, write_outputs
 from agents.parallel import Executor
+from agents.parallel import add_arguments as add_executor_arguments
+from agents.parallel import from_arguments as executor_from_arguments
 from agents.time_feature import TimeLeftObservation, uses_time_left
 
 __all__ = [
@@ -271,10 +274,11 @@ def policy_fits(policy: ShippedPolicy, env_id: str) -> bool:
 
 
 def benchmark_variant(env_id: str, agents: Sequence[str], episodes: int, seed: int, out: Path,
-                      verbose: bool = False) -> list[dict[str, Any]]:  # fmt: skip
+                      verbose: bool = False, executor: Executor | None = None) -> list[dict[str, Any]]:  # fmt: skip
     """Run ``agents`` (baseline names and shipped-policy labels) on ``env_id``; the leaderboard rows.
 
-    Writes the variant's :func:`~agents.evaluate.write_outputs` into ``out / env_id``.
+    Writes the variant's :func:`~agents.evaluate.write_outputs` into ``out / env_id``. ``executor``
+    runs the variant's episodes (default: this process).
     """
     specs: list[str] = []
     labels: dict[str, str] = {}
@@ -293,7 +297,9 @@ def benchmark_variant(env_id: str, agents: Sequence[str], episodes: int, seed: i
             specs.append(spec)
             labels[Path(spec).stem], kinds[Path(spec).stem] = name, "policy"
     started = time.perf_counter()
-    rows, summary = evaluate_agents(specs, episodes=episodes, seed=seed, env_id=env_id, env_kwargs={}, verbose=verbose)
+    rows, summary = evaluate_agents(
+        specs, episodes=episodes, seed=seed, env_id=env_id, env_kwargs={}, verbose=verbose, executor=executor
+    )
     write_outputs(rows, summary, out / env_id)
     if verbose:
         print(f"{env_id}: {len(specs)} agents x {episodes} episodes in {time.perf_counter() - started:.0f} s"
@@ -325,15 +331,25 @@ def benchmark_variant(env_id: str, agents: Sequence[str], episodes: int, seed: i
 
 
 def run_benchmark(variants: Sequence[str], agents: Sequence[str], episodes: int | None, seed: int, out: str | Path,
-                  jobs: int = 1, verbose: bool = False) -> list[dict[str, Any]]:  # fmt: skip
-    """Every agent on every variant (``jobs`` processes, one variant each); writes the leaderboard files.
+                  jobs: int = 1, verbose: bool = False, executor: Executor | None = None) -> list[dict[str, Any]]:  # fmt: skip
+    """Every agent on every variant; writes the leaderboard files.
 
     ``episodes`` per agent and variant; ``None``: the protocol's (:func:`held_out_episodes`).
+    Two ways to spread the work: ``jobs`` processes, one variant each (the largest variant
+    sets the wall time), or ``executor`` (:class:`agents.parallel.Executor`: local processes or
+    a Ray cluster), which runs the variants one after another with each variant's episodes
+    spread over all of its slots. Either gives the rows of one process.
     """
     if episodes is not None and int(episodes) < 1:
         raise ValueError(f"episodes must be positive, got {episodes!r}")
-    if int(jobs) < 1:
-        raise ValueError(f"jobs must be positive, got {jobs!r}")
+    if isinstance(jobs, bool) or not isinstance(jobs, int) or jobs < 1:
+        raise ValueError(f"jobs must be a positive int, got {jobs!r}")
+    if executor is not None and not isinstance(executor, Executor):
+        raise TypeError(f"executor must be an agents.parallel.Executor, got {type(executor).__name__}")
+    if executor is not None and executor.kind != "serial" and jobs > 1:
+        raise ValueError(
+            f"jobs: {jobs} processes of variants and an executor of episodes ({executor!r}) exclude each other"
+        )
     unknown = [name for name in agents if name not in BASELINES and name not in SHIPPED_POLICIES]
     if unknown:
         raise ValueError(f"agents: unknown {unknown} (baselines {list(BASELINES)}, policies {list(SHIPPED_POLICIES)})")
@@ -344,7 +360,10 @@ def run_benchmark(variants: Sequence[str], agents: Sequence[str], episodes: int 
     folder = Path(out)
     folder.mkdir(parents=True, exist_ok=True)
     work = [(env_id, list(agents), counts[env_id], int(seed), folder, verbose) for env_id in variants]
-    tables = Executor(workers=int(jobs)).map(benchmark_variant, work)  # one variant per task
+    if executor is not None and executor.kind != "serial":
+        tables = [benchmark_variant(*task, executor=executor) for task in work]  # a variant's episodes at once
+    else:
+        tables = Executor(workers=int(jobs)).map(benchmark_variant, work)  # one variant per task
     rows = [row for table in tables for row in table]
     with (folder / "leaderboard.csv").open("w", newline="") as handle:
         writer = csv.DictWriter(handle, fieldnames=list(LEADERBOARD_COLUMNS))
@@ -409,13 +428,18 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--jobs", type=int, default=1, help="worker processes, one variant each")
     parser.add_argument("--out", default="benchmark", help="output folder (default %(default)s)")
     parser.add_argument("--quiet", action="store_true", help="no progress on stderr")
+    add_executor_arguments(parser)  # --workers / --ray: each variant's episodes spread over them
     args = parser.parse_args(argv)
+    if args.jobs > 1 and (args.workers > 1 or args.ray is not None):
+        parser.error("--jobs (variants in parallel) and --workers/--ray (episodes in parallel) exclude each other")
+    executor = executor_from_arguments(args, parser)
     try:
         names = [name.strip() for name in args.variants.split(",") if name.strip()]
         variants = _resolve_variants(names, args.version) if names else default_variants(args.version)
         agents = [name.strip() for name in args.agents.split(",") if name.strip()]
         started = time.perf_counter()
-        run_benchmark(variants, agents, args.episodes, args.seed, args.out, jobs=args.jobs, verbose=not args.quiet)
+        run_benchmark(variants, agents, args.episodes, args.seed, args.out, jobs=args.jobs, verbose=not args.quiet,
+                      executor=executor)  # fmt: skip
     except ValueError as error:
         parser.error(str(error))
     print((Path(args.out) / "leaderboard.md").read_text())

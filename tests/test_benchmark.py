@@ -156,3 +156,37 @@ def test_run_benchmark_on_local_processes_equals_the_serial_run(tmp_path):
     parallel = benchmark.run_benchmark(*arguments, episodes=2, seed=11, out=tmp_path / "jobs", jobs=2)
     assert parallel == serial and len(serial) == 4
     assert (tmp_path / "jobs" / "leaderboard.md").read_text() == (tmp_path / "serial" / "leaderboard.md").read_text()
+
+
+def test_run_benchmark_with_episodes_on_local_processes_equals_the_serial_run(tmp_path):
+    """``--workers``: each variant's episodes spread over the executor's processes; the rows of one process."""
+    from agents.parallel import Executor
+
+    arguments = (["SeifExplore-v1", "SeifExploreLoop-v1"], ["frontier", "random"])
+    serial = benchmark.run_benchmark(*arguments, episodes=3, seed=11, out=tmp_path / "serial")
+    executor = Executor(workers=2)
+    spread = benchmark.run_benchmark(*arguments, episodes=3, seed=11, out=tmp_path / "spread", executor=executor)
+    assert spread == serial and len(serial) == 4
+    assert len(executor.placements) > 2  # the episodes ran as several tasks, not one per variant
+    for env_id in arguments[0]:  # every episode the same, all but the wall-clock column
+        episodes = [_episodes(tmp_path / run / env_id / "results.csv") for run in ("serial", "spread")]
+        assert episodes[0] == episodes[1] and len(episodes[0]) == 6
+    with pytest.raises(ValueError, match="jobs"):
+        benchmark.run_benchmark(*arguments, episodes=1, seed=11, out=tmp_path / "x", jobs=2, executor=executor)
+    with pytest.raises(TypeError, match="executor"):
+        benchmark.run_benchmark(*arguments, episodes=1, seed=11, out=tmp_path / "x", executor=2)
+    assert not (tmp_path / "x").exists()
+
+
+def test_benchmark_command_refuses_jobs_with_workers(tmp_path, capsys):
+    with pytest.raises(SystemExit):
+        benchmark.main(["--variants", "SeifExplore-v1", "--jobs", "2", "--workers", "2", "--out", str(tmp_path / "b")])
+    assert "exclude each other" in capsys.readouterr().err
+    assert not (tmp_path / "b").exists()
+
+
+def _episodes(path):
+    import csv
+
+    with open(path) as handle:
+        return [{k: v for k, v in row.items() if k != "decision_time_ms"} for row in csv.DictReader(handle)]

@@ -137,16 +137,27 @@ def behaviour_fingerprint(model_path: str | os.PathLike) -> str:
     """A digest of everything that decides the actions of the model at ``model_path`` when it is evaluated.
 
     Two saves of one policy differ byte for byte when the training state saved
-    beside it differs (step count, last observation, episode buffer, optimizer), so
-    the digest is taken over what the policy computes with: the tensors of ``policy.pth`` (names, dtypes, shapes, values),
-    the policy's class, keyword arguments and spaces from the model's ``data``, and
-    the observation normalisation of the statistics :func:`vecnormalize_path` finds
-    (``obs_rms``, ``clip_obs``, ``epsilon``, the normalised keys) when they
-    normalise observations at all. Statistics that normalise only the reward, and no
-    statistics, are the same: evaluation never normalises rewards. Equal digests mean
-    the same deterministic actions on the same observations; the callback's best model
-    is often the run's final model or its last checkpoint, and ``agents.select`` scores
-    it once.
+    beside it differs (step count, last observation, episode buffer, optimizer),
+    so the digest is taken over what the policy computes with: the tensors of
+    ``policy.pth`` (names, dtypes, shapes, values), the policy's class, keyword
+    arguments and spaces from the model's ``data``, and the observation
+    normalisation of the statistics :func:`vecnormalize_path` finds (``obs_rms``,
+    ``clip_obs``, ``epsilon``, the normalised keys) when they normalise
+    observations at all. Statistics that normalise only the reward, and no
+    statistics, digest the same: evaluation never normalises rewards.
+
+    Parameters
+    ----------
+    model_path : str or PathLike
+        A saved SB3 model (``.zip``).
+
+    Returns
+    -------
+    str
+        A SHA-256 hex digest. Equal digests mean the same deterministic actions on
+        the same observations: the callback's best model is often the run's final
+        model or its last checkpoint saved again, and ``agents.select`` scores such
+        a candidate once.
 
     Raises
     ------

@@ -149,7 +149,7 @@ def behaviour_fingerprint(model_path: str | os.PathLike) -> str:
     Parameters
     ----------
     model_path : str or PathLike
-        A saved SB3 model (``.zip``).
+        The model to digest; its statistics are found beside it.
 
     Returns
     -------

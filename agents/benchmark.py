@@ -430,8 +430,6 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--quiet", action="store_true", help="no progress on stderr")
     add_executor_arguments(parser)  # --workers / --ray: each variant's episodes spread over them
     args = parser.parse_args(argv)
-    if args.jobs > 1 and (args.workers > 1 or args.ray is not None):
-        parser.error("--jobs (variants in parallel) and --workers/--ray (episodes in parallel) exclude each other")
     executor = executor_from_arguments(args, parser)
     try:
         names = [name.strip() for name in args.variants.split(",") if name.strip()]

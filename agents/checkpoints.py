@@ -181,7 +181,7 @@ def behaviour_fingerprint(model_path: str | os.PathLike) -> str:
     for name in sorted(weights):
         tensor = weights[name].detach().cpu().contiguous()
         digest.update(f"{name}|{tensor.dtype}|{tuple(tensor.shape)}|".encode())
-        digest.update(tensor.numpy().tobytes() if tensor.dtype != torch.bfloat16 else tensor.float().numpy().tobytes())
+        digest.update(tensor.flatten().view(torch.uint8).numpy().tobytes())  # the raw bytes, whatever the dtype
     stats_path = vecnormalize_path(path)
     # a pickled VecNormalize without its venv: read its fields from __dict__ (getattr recurses into the venv)
     stats = None if stats_path is None else vars(load_vecnormalize_stats(stats_path))

@@ -200,13 +200,13 @@ def select_checkpoints(
     per_run = {str(run): candidates(run) for run in runs}
     if len({Path(r).resolve() for r in runs}) != len(runs):
         raise ValueError(f"runs: a folder is given twice: {[str(r) for r in runs]}")
-    labels = [c.label for found in per_run.values() for c in found]
+    everyone = [c for found in per_run.values() for c in found]
+    labels = [c.label for c in everyone]
     if len(set(labels)) != len(labels):
         raise ValueError("runs: two run folders have the same name; their candidates' labels would clash")
     if any("=" in label or "," in label for label in labels):
         raise ValueError("runs: a run folder's name holds '=' or ',', which agent specs reserve")
     # a candidate that acts as an earlier one (the callback's best is often the final model) is scored once
-    everyone = [c for found in per_run.values() for c in found]
     first_of: dict[str, str] = {}
     same_as: dict[str, str] = {}
     for c in everyone:

@@ -1,0 +1,68 @@
+"""RecurrentPPO training throughput: sb3-contrib's step-by-step LSTM sequences against the fused ones.
+
+Usage::
+
+    python benchmarks/bench_recurrent.py [--env SeifExploreLoopBudget-v2] [--timesteps 16384]
+
+Runs ``python -m agents.train --algo ppo_lstm`` with the task's entry of
+``agents/hyperparams/ppo_lstm.yml`` (8 envs, 512-step rollouts, 5 epochs of
+minibatches of 1024, the coverage shaping, an LSTM of 256 units), validation
+and checkpoints off, once with ``fused_lstm=False`` (sb3-contrib's loop over
+time steps wherever an episode begins inside a sequence) and once with
+``fused_lstm=True`` (:func:`agents.networks.fused_lstm_sequence`), and prints
+the steps per second of ``model.learn`` (``train_time.json``). Each run is a
+fresh process on one BLAS thread.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+from agents.hyperparams import load
+
+
+def run(env_id: str, fused: bool, timesteps: int, folder: Path) -> float:
+    """Steps per second of one training run."""
+    entry = load("ppo_lstm")[env_id]
+    policy_kwargs = str(entry["policy_kwargs"]).strip()
+    if not policy_kwargs.endswith(")"):
+        raise ValueError(f"env: the entry's policy_kwargs is not a dict(...) string: {policy_kwargs!r}")
+    policy_kwargs = policy_kwargs[:-1] + f", fused_lstm={fused})"
+    out = folder / ("fused" if fused else "loop")
+    command = [sys.executable, "-m", "agents.train", "--algo", "ppo_lstm", "--env", env_id, "--timesteps",
+               str(timesteps), "--out", str(out), "--quiet", "--eval-freq", "-1", "--checkpoint-freq", "-1",
+               "--hyperparams", f"policy_kwargs={policy_kwargs}"]  # fmt: skip
+    environment = {**os.environ, "OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1"}
+    subprocess.run(command, check=True, capture_output=True, text=True, env=environment)
+    record = json.loads((out / "train_time.json").read_text())
+    return record["timesteps"] / record["seconds"]
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--env", default="SeifExploreLoopBudget-v2", help="an entry of ppo_lstm.yml")
+    parser.add_argument("--timesteps", type=int, default=16384)
+    args = parser.parse_args(argv)
+    if args.env not in load("ppo_lstm"):
+        parser.error(f"--env: ppo_lstm.yml has no entry {args.env!r}")
+    with tempfile.TemporaryDirectory() as folder:
+        rates = {fused: run(args.env, fused, args.timesteps, Path(folder)) for fused in (False, True)}
+    print(f"RecurrentPPO on {args.env}, {args.timesteps} steps, {os.cpu_count()} CPUs")
+    print()
+    print("| LSTM sequences | training steps/s |")
+    print("|---|---:|")
+    print(f"| step by step (sb3-contrib; fused_lstm=False) | {rates[False]:,.0f} |")
+    print(f"| fused (fused_lstm=True) | {rates[True]:,.0f} |")
+    print()
+    print(f"fused / step by step: {rates[True] / rates[False]:.2f}x")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

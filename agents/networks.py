@@ -137,11 +137,14 @@ def fused_lstm_sequence(
 
     Notes
     -----
-    The outputs and final states equal the reference's bit for bit (the same
-    gate arithmetic per step; tested). The gradients of the LSTM's weights
-    equal them to float32 round-off only, since the fused backward sums the
-    steps' contributions in another order: a run trained with it follows the
-    same recipe, not the same bits.
+    The outputs and final states equal the reference's (bit for bit on the
+    machines measured: the same gate arithmetic per step; the input products
+    of all steps are one matrix product instead of one per step, which a BLAS
+    may round differently). One-step sequences, as when acting, run the very
+    operations of the reference, so actions are equal bit for bit. The
+    gradients of the LSTM's weights equal the reference's to float32 round-off
+    only, since the fused backward sums the steps' contributions in another
+    order: a run trained with it follows the same recipe, not the same bits.
     """
     n_seq = lstm_states[0].shape[1]
     starts = episode_starts.reshape((n_seq, -1))

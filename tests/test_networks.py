@@ -24,7 +24,9 @@ reference_sequence = RecurrentActorCriticPolicy._process_sequence
 def padded_batch(n_seq: int, length: int, layers: int, starts_at_zero: list[int], seed: int = 0):
     """Sequences as sb3-contrib's recurrent buffer hands them over: sequence-major, with initial states."""
     generator = torch.Generator().manual_seed(seed)
-    lstm = nn.LSTM(6, 5, num_layers=layers)
+    with torch.random.fork_rng():
+        torch.manual_seed(seed)  # the LSTM's initial weights too: the same test every run
+        lstm = nn.LSTM(6, 5, num_layers=layers)
     features = torch.randn(n_seq * length, 6, generator=generator, requires_grad=True)
     starts = torch.zeros(n_seq, length)
     starts[starts_at_zero, 0] = 1.0
@@ -47,8 +49,11 @@ def test_fused_sequence_equals_the_reference_bit_for_bit_and_its_gradients_to_ro
     fused = torch.autograd.grad((output * weights).sum(), inputs)
     reference = torch.autograd.grad((expected * weights).sum(), inputs)
     for got, want in zip(fused, reference, strict=True):
-        assert want.abs().max() > 1e-3  # a gradient that is there
-        torch.testing.assert_close(got, want, rtol=1e-5, atol=1e-6)
+        scale = float(want.abs().max())
+        assert scale > 1e-3  # a gradient that is there
+        # round-off of sums over the steps, in another order: relative to the tensor's scale, not each entry's
+        # (an entry near zero that sums 23 steps' contributions can differ by 1e-4 of itself)
+        torch.testing.assert_close(got, want, rtol=0, atol=1e-5 * scale)
 
 
 def test_a_reset_inside_a_sequence_falls_back_to_the_reference(monkeypatch):

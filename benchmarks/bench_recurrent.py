@@ -11,37 +11,32 @@ and checkpoints off, once with ``fused_lstm=False`` (sb3-contrib's loop over
 time steps wherever an episode begins inside a sequence) and once with
 ``fused_lstm=True`` (:func:`agents.networks.fused_lstm_sequence`), and prints
 the steps per second of ``model.learn`` (``train_time.json``). Each run is a
-fresh process on one BLAS thread.
+fresh process on one BLAS thread and one torch thread.
 """
 
 from __future__ import annotations
 
 import argparse
-import json
 import os
-import subprocess
 import sys
 import tempfile
 from pathlib import Path
+
+from bench_training import training_rate  # this folder is on sys.path when a benchmark runs as a script
 
 from agents.hyperparams import load
 
 
 def run(env_id: str, fused: bool, timesteps: int, folder: Path) -> float:
     """Steps per second of one training run."""
-    entry = load("ppo_lstm")[env_id]
-    policy_kwargs = str(entry["policy_kwargs"]).strip()
+    policy_kwargs = str(load("ppo_lstm")[env_id]["policy_kwargs"]).strip()
     if not policy_kwargs.endswith(")"):
         raise ValueError(f"env: the entry's policy_kwargs is not a dict(...) string: {policy_kwargs!r}")
     policy_kwargs = policy_kwargs[:-1] + f", fused_lstm={fused})"
-    out = folder / ("fused" if fused else "loop")
-    command = [sys.executable, "-m", "agents.train", "--algo", "ppo_lstm", "--env", env_id, "--timesteps",
-               str(timesteps), "--out", str(out), "--quiet", "--eval-freq", "-1", "--checkpoint-freq", "-1",
-               "--hyperparams", f"policy_kwargs={policy_kwargs}"]  # fmt: skip
-    environment = {**os.environ, "OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1"}
-    subprocess.run(command, check=True, capture_output=True, text=True, env=environment)
-    record = json.loads((out / "train_time.json").read_text())
-    return record["timesteps"] / record["seconds"]
+    arguments = ["--algo", "ppo_lstm", "--env", env_id, "--timesteps", str(timesteps),
+                 "--hyperparams", f"policy_kwargs={policy_kwargs}"]  # fmt: skip
+    # torch on one thread too, as the recipes' runs are (two at a time on this 2-core machine)
+    return training_rate(arguments, folder / ("fused" if fused else "loop"), {"OMP_NUM_THREADS": "1"})
 
 
 def main(argv: list[str] | None = None) -> int:

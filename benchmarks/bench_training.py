@@ -28,17 +28,27 @@ from seif_gym import LATEST_ID
 VEC_ENVS = ("native", "dummy", "subproc")
 
 
-def run(env_id: str, vec_env: str, timesteps: int, n_envs: int, folder: Path) -> float:
-    """Steps per second of one training run."""
-    out = folder / vec_env
-    # the shipped entry's shaping wrapper would turn native into dummy, and validation is not training:
-    # both off, so that the three runs differ only in the vector env
-    command = [sys.executable, "-m", "agents.train", "--algo", "ppo", "--env", env_id, "--timesteps", str(timesteps),
-               "--n-envs", str(n_envs), "--vec-env", vec_env, "--out", str(out), "--quiet",
-               "--hyperparams", "env_wrapper=null", "--eval-freq", "-1", "--checkpoint-freq", "-1"]  # fmt: skip
-    subprocess.run(command, check=True, capture_output=True, text=True, env={**os.environ, "OPENBLAS_NUM_THREADS": "1"})
+def training_rate(train_arguments: list[str], out: Path, extra_environment: dict[str, str] | None = None) -> float:
+    """Steps per second of ``model.learn`` in one ``python -m agents.train`` run, a fresh process on one BLAS thread.
+
+    ``train_arguments`` are the run's own; the run writes to ``out``, validation and checkpoints off;
+    ``extra_environment`` adds variables to the process's environment.
+    """
+    command = [sys.executable, "-m", "agents.train", *train_arguments, "--out", str(out), "--quiet",
+               "--eval-freq", "-1", "--checkpoint-freq", "-1"]  # fmt: skip
+    environment = {**os.environ, "OPENBLAS_NUM_THREADS": "1", **(extra_environment or {})}
+    subprocess.run(command, check=True, capture_output=True, text=True, env=environment)
     record = json.loads((out / "train_time.json").read_text())
     return record["timesteps"] / record["seconds"]
+
+
+def run(env_id: str, vec_env: str, timesteps: int, n_envs: int, folder: Path) -> float:
+    """Steps per second of one training run."""
+    # the shipped entry's shaping wrapper would turn native into dummy, and validation is not training:
+    # both off, so that the three runs differ only in the vector env
+    arguments = ["--algo", "ppo", "--env", env_id, "--timesteps", str(timesteps), "--n-envs", str(n_envs),
+                 "--vec-env", vec_env, "--hyperparams", "env_wrapper=null"]  # fmt: skip
+    return training_rate(arguments, folder / vec_env)
 
 
 def main(argv: list[str] | None = None) -> int:

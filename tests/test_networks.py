@@ -112,7 +112,6 @@ def test_training_with_the_fused_step_collects_the_same_rollout_and_takes_the_sa
     for name in ("actions", "values", "log_probs", "rewards"):
         np.testing.assert_array_equal(getattr(buffers[1], name), getattr(buffers[0], name), err_msg=name)
 
-    moved = 0.0
     for (name, got), (_, want) in zip(
         fused.policy.state_dict().items(), reference.policy.state_dict().items(), strict=True
     ):
@@ -125,6 +124,7 @@ def test_training_with_the_fused_step_collects_the_same_rollout_and_takes_the_sa
         device="cpu",
         policy_kwargs={"lstm_hidden_size": 16},
     )
+    moved = 0.0
     for (_, before), (_, after) in zip(
         untrained.policy.state_dict().items(), reference.policy.state_dict().items(), strict=True
     ):

@@ -135,6 +135,13 @@ def fused_lstm_sequence(
         ``(output, (hidden, cell))``: ``output`` is ``(n_seq * length,
         hidden_size)``, in the order of ``features``.
 
+    Raises
+    ------
+    ValueError
+        If ``features`` is not ``(rows, lstm.input_size)`` or ``episode_starts``
+        does not hold one flag per row, in ``n_seq`` sequences of equal length
+        (``n_seq`` from ``lstm_states``). The function keeps no state.
+
     Notes
     -----
     The outputs and final states equal the reference's (bit for bit on the
@@ -147,6 +154,14 @@ def fused_lstm_sequence(
     order: a run trained with it follows the same recipe, not the same bits.
     """
     n_seq = lstm_states[0].shape[1]
+    rows = features.shape[0] if features.dim() == 2 else -1
+    if rows < 0 or features.shape[1] != lstm.input_size:
+        raise ValueError(f"features must be (n_seq * length, {lstm.input_size}), got {tuple(features.shape)}")
+    if episode_starts.numel() != rows or rows % max(n_seq, 1) != 0:
+        raise ValueError(
+            f"episode_starts must hold one flag per row of features, {n_seq} sequences of equal length: "
+            f"got {episode_starts.numel()} flags for {rows} rows"
+        )
     starts = episode_starts.reshape((n_seq, -1))
     if bool(torch.any(starts[:, 1:] != 0.0)):
         # sb3-contrib annotates the states it returns as one tensor; they are the (hidden, cell) pair

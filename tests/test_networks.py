@@ -75,6 +75,16 @@ def test_a_reset_inside_a_sequence_falls_back_to_the_reference(monkeypatch):
     )
 
 
+def test_misshaped_input_is_refused_naming_the_argument():
+    lstm, features, states, starts = padded_batch(n_seq=3, length=9, layers=1, starts_at_zero=[0])
+    with pytest.raises(ValueError, match="features"):
+        fused_lstm_sequence(features[:, :4], states, starts, lstm)
+    with pytest.raises(ValueError, match="episode_starts"):
+        fused_lstm_sequence(features, states, starts[:-1], lstm)
+    with pytest.raises(ValueError, match="episode_starts"):
+        fused_lstm_sequence(features[:-1], states, starts[:-1], lstm)  # 26 rows in 3 sequences
+
+
 def one_update(fused: bool) -> RecurrentPPO:
     """One RecurrentPPO update on 2 envs of 12-step episodes (episodes begin inside every rollout)."""
     env = make_vec_env(

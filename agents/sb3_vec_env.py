@@ -5,7 +5,8 @@ Gymnasium ``VectorEnv``. :class:`NativeVecEnv` is that adapter: it drives the
 vector env in ``SameStep`` autoreset mode (what SB3 expects: the step that
 ends an episode already returns the next episode's first observation) and
 turns its batched infos into SB3's list of per-env dicts, with
-``infos[i]["terminal_observation"]`` and ``infos[i]["TimeLimit.truncated"]``.
+``infos[i]["terminal_observation"]`` and ``infos[i]["TimeLimit.truncated"]``;
+each sub-env's latest reset info is in ``reset_infos[i]``, as SB3 keeps it.
 
 >>> import seif_gym
 >>> from agents.sb3_vec_env import NativeVecEnv
@@ -58,8 +59,9 @@ class NativeVecEnv(VecEnv):
 
     # -- VecEnv interface ---------------------------------------------------------------------------
     def reset(self) -> VecEnvObs:
-        observations, _ = self.venv.reset(seed=self._seed)
+        observations, infos = self.venv.reset(seed=self._seed)
         self._seed = None  # later resets continue each sub-env's own random stream
+        self.reset_infos = self._split(infos)  # as DummyVecEnv: each sub-env's reset info
         return observations
 
     def step_async(self, actions: np.ndarray) -> None:
@@ -75,6 +77,7 @@ class NativeVecEnv(VecEnv):
             # with the next episode's reset info in its place)
             final = self._split(infos["final_info"])
             for i in np.flatnonzero(dones).tolist():
+                self.reset_infos[i] = per_env[i]  # the next episode's reset info, as DummyVecEnv keeps it
                 per_env[i] = final[i]
                 per_env[i]["terminal_observation"] = infos["final_obs"][i]
         for i in range(self.num_envs):  # as SB3's DummyVecEnv: on every step

@@ -19,6 +19,13 @@ def test_native_vec_env_equals_dummy_vec_env():
     obs, expected = native.reset(), reference.reset()
     for key in obs:
         np.testing.assert_array_equal(obs[key], expected[key])
+
+    def assert_reset_infos_equal() -> None:
+        for mine, theirs in zip(native.reset_infos, reference.reset_infos, strict=True):
+            assert set(mine) == set(theirs) and mine["map_error"] == theirs["map_error"]
+            np.testing.assert_array_equal(mine["true_pose"], theirs["true_pose"])
+
+    assert_reset_infos_equal()
     rng = np.random.default_rng(0)
     truncations = 0
     for t in range(40):
@@ -39,6 +46,7 @@ def test_native_vec_env_equals_dummy_vec_env():
                 for key in obs:
                     np.testing.assert_array_equal(infos[i]["terminal_observation"][key],
                                                   e_infos[i]["terminal_observation"][key])  # fmt: skip
+        assert_reset_infos_equal()  # after an autoreset: the new episode's reset info
     assert truncations >= num_envs  # every sub-env went through its time limit and was reset
     assert native.get_attr("world_config")[0] == reference.get_attr("world_config")[0]
     native.close()

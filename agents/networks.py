@@ -154,9 +154,9 @@ def fused_lstm_sequence(
     order: a run trained with it follows the same recipe, not the same bits.
     """
     n_seq = lstm_states[0].shape[1]
-    rows = features.shape[0] if features.dim() == 2 else -1
-    if rows < 0 or features.shape[1] != lstm.input_size:
+    if features.dim() != 2 or features.shape[1] != lstm.input_size:
         raise ValueError(f"features must be (n_seq * length, {lstm.input_size}), got {tuple(features.shape)}")
+    rows = features.shape[0]
     if episode_starts.numel() != rows or rows % max(n_seq, 1) != 0:
         raise ValueError(
             f"episode_starts must hold one flag per row of features, {n_seq} sequences of equal length: "

@@ -79,6 +79,8 @@ def test_misshaped_input_is_refused_naming_the_argument():
     lstm, features, states, starts = padded_batch(n_seq=3, length=9, layers=1, starts_at_zero=[0])
     with pytest.raises(ValueError, match="features"):
         fused_lstm_sequence(features[:, :4], states, starts, lstm)
+    with pytest.raises(ValueError, match="features"):
+        fused_lstm_sequence(features[:, 0], states, starts, lstm)  # one dimension
     with pytest.raises(ValueError, match="episode_starts"):
         fused_lstm_sequence(features, states, starts[:-1], lstm)
     with pytest.raises(ValueError, match="episode_starts"):

@@ -133,6 +133,42 @@ def load_vecnormalize_stats(stats_path: str | os.PathLike) -> Any:
         return pickle.load(handle)  # noqa: S301 (our own training output, as VecNormalize.load)
 
 
+#: Fields of a gymnasium space that are state, not definition: its generator, and the strings a ``Box``
+#: (gymnasium >= 1.3) caches once it has been printed.
+_NOT_DEFINITION = frozenset({"_np_random", "low_repr", "high_repr"})
+
+
+def _definition(value: Any) -> Any:
+    """``value`` as JSON: arrays by dtype, shape and bytes, spaces by their fields less :data:`_NOT_DEFINITION`."""
+    if isinstance(value, np.ndarray):
+        return [str(value.dtype), list(value.shape), value.tobytes().hex()]
+    if isinstance(value, dict):
+        return {str(key): _definition(item) for key, item in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_definition(item) for item in value]
+    if isinstance(value, (bool, int, float, str)) or value is None:
+        return value
+    if hasattr(value, "__dict__") and type(value).__module__.startswith("gymnasium.spaces"):
+        fields = {key: item for key, item in vars(value).items() if key not in _NOT_DEFINITION}
+        return {"type": type(value).__qualname__, "fields": _definition(fields)}
+    return repr(value)
+
+
+def _space_definition(entry: Any) -> Any:
+    """A space saved in a model's ``data`` (SB3's JSON of it) as its definition without random state.
+
+    SB3 pickles the whole space, generator and caches included: the generator
+    moves when the space is seeded or sampled, and gymnasium 1.3 on caches a
+    ``Box``'s bounds as text once it is printed, so two saves of one policy
+    would digest differently.
+    """
+    if not isinstance(entry, dict) or ":serialized:" not in entry:
+        return entry
+    import base64
+
+    return _definition(pickle.loads(base64.b64decode(entry[":serialized:"])))  # noqa: S301  (SB3 loads it too)
+
+
 def behaviour_fingerprint(model_path: str | os.PathLike) -> str:
     """A digest of everything that decides the actions of the model at ``model_path`` when it is evaluated.
 
@@ -177,7 +213,10 @@ def behaviour_fingerprint(model_path: str | os.PathLike) -> str:
     except (OSError, KeyError, zipfile.BadZipFile, ValueError) as error:
         raise ValueError(f"model_path: {str(path)!r} is not a saved SB3 model ({error})") from error
     for key in _POLICY_DATA:
-        digest.update(json.dumps([key, data.get(key)], sort_keys=True).encode())
+        value = data.get(key)
+        if key.endswith("_space"):  # the space's definition, not its random generator's state (pickled with it)
+            value = _space_definition(value)
+        digest.update(json.dumps([key, value], sort_keys=True).encode())
     for name in sorted(weights):
         tensor = weights[name].detach().cpu().contiguous()
         digest.update(f"{name}|{tensor.dtype}|{tuple(tensor.shape)}|".encode())

@@ -80,6 +80,9 @@ the evaluation, never by the agents). Written to ``--out`` (default
     interval lies below zero (``worse`` above it, ``tie (interval holds 0)``
     otherwise).
 
+    ``stored_run`` is the folder of the earlier run whose episodes joined
+    this one (``--stored-run``, :func:`load_stored_run`), ``null`` for none.
+
 ``map_error.png``
     The mean map error over time per agent with its 95 % band.
 
@@ -132,6 +135,7 @@ __all__ = [
     "PAIRED_KEYS",
     "PAIRED_STAT_KEYS",
     "SCHEMA_VERSION",
+    "INTEGER_COLUMNS",
     "SB3Agent",
     "sb3_algorithm",
     "agent_label",
@@ -143,6 +147,7 @@ __all__ = [
     "paired_difference",
     "paired_verdict",
     "paired_comparison",
+    "load_stored_run",
     "evaluate_agents",
     "write_outputs",
     "markdown_table",
@@ -151,8 +156,8 @@ __all__ = [
     "main",
 ]
 
-#: Version of the output schema below; bumped on any change of it (2: ``paired``).
-SCHEMA_VERSION = 2
+#: Version of the output schema below; bumped on any change of it (2: ``paired``; 3: ``stored_run``).
+SCHEMA_VERSION = 3
 #: Columns of ``results.csv`` (one row per agent × episode), in order.
 RESULT_COLUMNS: tuple[str, ...] = (
     "agent",
@@ -182,8 +187,11 @@ SUMMARY_METRICS: tuple[str, ...] = (
 )
 #: Top-level keys of ``summary.json``.
 SUMMARY_KEYS: tuple[str, ...] = (
-    "schema_version", "env_id", "env_kwargs", "episodes", "seeds", "metrics", "agents", "paired",
+    "schema_version", "env_id", "env_kwargs", "episodes", "seeds", "metrics", "agents", "paired", "stored_run",
 )  # fmt: skip
+#: Columns of ``results.csv`` that hold integers (the others but ``agent`` hold floats).
+INTEGER_COLUMNS: tuple[str, ...] = ("episode", "seed", "landmarks_mapped", "landmarks_total", "length",
+                                    "wall_contacts", "diverged")  # fmt: skip
 #: Keys of ``summary.json["agents"][label]``.
 AGENT_KEYS: tuple[str, ...] = ("spec", "episodes", *SUMMARY_METRICS, "map_error_over_time")
 #: Keys of each metric's statistics.
@@ -651,6 +659,74 @@ def _curve(traces: Sequence[Sequence[float]]) -> dict[str, list]:
     return {"step": list(range(longest)), "mean": mean.tolist(), "ci95_low": low, "ci95_high": high}
 
 
+def _seed_range(seeds: Any) -> str:
+    """``first..last (n seeds)`` of a list of seeds, else its repr."""
+    if isinstance(seeds, list) and seeds:
+        return f"{seeds[0]}..{seeds[-1]} ({len(seeds)} seeds)"
+    return repr(seeds)
+
+
+def load_stored_run(
+    folder: str | os.PathLike, env_id: str, env_kwargs: Mapping[str, Any], seeds: Sequence[int]
+) -> tuple[list[dict[str, Any]], dict[str, Any]]:
+    """The episodes of an earlier run (an ``--out`` folder of this command), checked to be of the same task.
+
+    Lets a run pair its agents with agents already run on the same seeds (the
+    baselines' held-out episodes of a declared experiment, say) instead of
+    running them again. Episodes are deterministic given the env, its
+    arguments and the seed, so the stored ones are what a new run would give.
+
+    Parameters
+    ----------
+    folder : str or PathLike
+        Holds ``results.csv`` and ``summary.json`` of the earlier run.
+    env_id, env_kwargs, seeds
+        This run's: the stored run must have been made with the same ones and
+        the same :data:`SCHEMA_VERSION`.
+
+    Returns
+    -------
+    rows : list of dict
+        Its ``results.csv`` rows (keys :data:`RESULT_COLUMNS`, typed as written).
+    agents : dict
+        Its ``summary.json["agents"]`` entries (label -> :data:`AGENT_KEYS`).
+
+    Raises
+    ------
+    FileNotFoundError
+        If either file is missing.
+    ValueError
+        If the stored run's schema, env id, env arguments or seeds differ
+        from this run's, or its rows do not cover every agent on every seed.
+    """
+    path = Path(folder)
+    summary_path, results_path = path / "summary.json", path / "results.csv"
+    for needed in (summary_path, results_path):
+        if not needed.is_file():
+            raise FileNotFoundError(f"stored_run: {needed} does not exist (an agents.evaluate --out folder?)")
+    stored = json.loads(summary_path.read_text())
+    expected_seeds = [int(seed) for seed in seeds]
+    checks: dict[str, Any] = {"schema_version": SCHEMA_VERSION, "env_id": env_id, "env_kwargs": dict(env_kwargs),
+                              "seeds": expected_seeds}  # fmt: skip
+    for key, expected in checks.items():
+        found = stored.get(key)
+        if found != expected:
+            if key == "seeds":  # a range, not a thousand numbers
+                expected, found = _seed_range(expected), _seed_range(found)
+            raise ValueError(f"stored_run: {path} was made with {key} {found!r}, this run has {expected!r}")
+    with open(results_path, newline="") as handle:
+        reader = csv.DictReader(handle)
+        if tuple(reader.fieldnames or ()) != RESULT_COLUMNS:
+            raise ValueError(f"stored_run: {results_path} does not have the columns {RESULT_COLUMNS}")
+        rows = [{column: value if column == "agent" else int(value) if column in INTEGER_COLUMNS else float(value)
+                 for column, value in row.items()} for row in reader]  # fmt: skip
+    agents = stored["agents"]
+    for label in agents:
+        if sorted(row["seed"] for row in rows if row["agent"] == label) != sorted(expected_seeds):
+            raise ValueError(f"stored_run: {results_path} lacks episodes of {label!r} on this run's seeds")
+    return rows, agents
+
+
 def evaluate_agents(
     agent_specs: Sequence[str],
     episodes: int,
@@ -661,6 +737,7 @@ def evaluate_agents(
     verbose: bool = False,
     bootstrap: int = 0,
     executor: Executor | None = None,
+    stored_run: str | os.PathLike | None = None,
 ) -> tuple[list[dict[str, Any]], dict[str, Any]]:
     """Run every agent on the seeds ``seed … seed + episodes − 1``.
 
@@ -684,6 +761,11 @@ def evaluate_agents(
     executor : agents.parallel.Executor, optional
         Where the episodes run (default: one after another in this process);
         the rows are the same on every executor but for ``decision_time_ms``.
+    stored_run : str or PathLike, optional
+        An earlier run's folder (:func:`load_stored_run`: same env, arguments
+        and seeds): its agents' episodes join this run's, after them, without
+        running again; its baselines count as baselines of the paired
+        comparison. Its labels may not repeat this run's.
 
     Returns
     -------
@@ -705,6 +787,14 @@ def evaluate_agents(
     for _, target in labelled:
         check_agent_spec(target)  # before any episode runs
     baselines = [label for label, target in labelled if target in BASELINES]
+    stored_rows: list[dict[str, Any]] = []
+    stored_agents: dict[str, Any] = {}
+    if stored_run is not None:  # read and checked before any episode runs
+        stored_rows, stored_agents = load_stored_run(stored_run, env_id, env_kwargs, seeds)
+        repeated = sorted(set(stored_agents) & {label for label, _ in labelled})
+        if repeated:
+            raise ValueError(f"stored_run: {stored_run} already has the agents {repeated}: label this run's otherwise")
+        baselines += [label for label, entry in stored_agents.items() if entry["spec"] in BASELINES]
     # tasks: runs of consecutive seeds of one agent; an agent whose state carries over between
     # episodes (random's generator) gets all of its seeds in one task, as in a serial run
     slots = executor.slots() if executor.kind != "serial" else 1
@@ -751,6 +841,8 @@ def evaluate_agents(
             entry[metric] = mean_ci([row[metric] for row in agent_rows])
         entry["map_error_over_time"] = _curve([trace for _, trace, _, _ in done])
         agents_summary[label] = entry
+    rows.extend(stored_rows)
+    agents_summary.update(stored_agents)
     summary = {
         "schema_version": SCHEMA_VERSION,
         "env_id": env_id,
@@ -760,6 +852,7 @@ def evaluate_agents(
         "metrics": list(SUMMARY_METRICS),
         "agents": agents_summary,
         "paired": paired_comparison(rows, baselines, bootstrap=bootstrap),
+        "stored_run": None if stored_run is None else str(stored_run),
     }
     return rows, summary
 
@@ -898,6 +991,13 @@ def _parser() -> argparse.ArgumentParser:
     parser.add_argument("--out", default="eval", help="output folder (default ./eval)")
     parser.add_argument("--bootstrap", type=int, default=0, metavar="N",
                         help="also a percentile bootstrap interval of the paired differences, N resamples (default 0: none)")  # fmt: skip
+    parser.add_argument(
+        "--stored-run",
+        default=None,
+        metavar="DIR",
+        help="an earlier --out folder of this command on the same env, env kwargs and seeds: its agents' episodes "
+        "join this run's without running again (e.g. the baselines' held-out episodes)",
+    )
     parser.add_argument("--quiet", action="store_true", help="no progress on stderr")
     add_executor_arguments(parser)
     return parser
@@ -917,10 +1017,19 @@ def main(argv: Sequence[str] | None = None) -> int:
             check_agent_spec(target)
     except (ValueError, FileNotFoundError) as error:
         parser.error(str(error))
+    seeds = list(range(args.seed, args.seed + args.episodes))
+    if args.stored_run is not None:
+        try:
+            stored_labels = set(load_stored_run(args.stored_run, args.env, args.env_kwargs, seeds)[1])
+        except (ValueError, FileNotFoundError) as error:
+            parser.error(str(error).replace("stored_run:", "--stored-run:", 1))
+        repeated = sorted(stored_labels & {label for label, _ in agent_labels(specs)})
+        if repeated:
+            parser.error(f"--stored-run: {args.stored_run} already has the agents {repeated}")
     executor = executor_from_arguments(args, parser)
     started = time.perf_counter()
     rows, summary = evaluate_agents(specs, args.episodes, args.seed, args.env, args.env_kwargs, verbose=not args.quiet,
-                                    bootstrap=args.bootstrap, executor=executor)  # fmt: skip
+                                    bootstrap=args.bootstrap, executor=executor, stored_run=args.stored_run)  # fmt: skip
     paths = write_outputs(rows, summary, args.out)
     print(f"{args.env}, {args.episodes} episodes per agent, seeds {args.seed}..{args.seed + args.episodes - 1}; "
           "mean ± 95% CI half-width\n")  # fmt: skip

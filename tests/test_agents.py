@@ -509,6 +509,68 @@ def test_cli_with_an_sb3_model_and_vecnormalize(tmp_path, capsys) -> None:
     assert list(json.loads((out / "summary.json").read_text())["agents"]) == ["frontier", "policy"]
 
 
+def test_a_stored_run_joins_and_pairs_as_if_its_agents_had_run_again(tmp_path, capsys) -> None:
+    kwargs = {"max_episode_steps": 12}
+    together_rows, together = evaluate.evaluate_agents(
+        ["revisit", "frontier", "random"], 3, 5, "SeifExplore-v1", kwargs
+    )
+    status = evaluate.main(["--agents", "revisit,frontier", "--episodes", "3", "--seed", "5", "--env", "SeifExplore-v1",
+                            "--env-kwargs", json.dumps(kwargs), "--out", str(tmp_path / "stored"), "--quiet"])  # fmt: skip
+    assert status == 0
+    rows, summary = evaluate.evaluate_agents(["random"], 3, 5, "SeifExplore-v1", kwargs, stored_run=tmp_path / "stored")
+    assert summary["stored_run"] == str(tmp_path / "stored") and together["stored_run"] is None
+    assert list(summary["agents"]) == ["random", "revisit", "frontier"]
+    # the stored episodes are the ones a run of all three gives, and so is the paired comparison
+    key = lambda row: (row["agent"], row["seed"])  # noqa: E731
+    for mine, theirs in zip(sorted(rows, key=key), sorted(together_rows, key=key)):
+        assert {k: v for k, v in mine.items() if k != "decision_time_ms"} == {
+            k: v for k, v in theirs.items() if k != "decision_time_ms"
+        }
+    assert summary["paired"]["reference"] == together["paired"]["reference"]
+    assert summary["paired"]["agents"]["random"] == together["paired"]["agents"]["random"]
+    # through the command line too, written out with the stored agents
+    capsys.readouterr()
+    status = evaluate.main(["--agents", "random", "--episodes", "3", "--seed", "5", "--env", "SeifExplore-v1",
+                            "--env-kwargs", json.dumps(kwargs), "--out", str(tmp_path / "new"), "--quiet",
+                            "--stored-run", str(tmp_path / "stored")])  # fmt: skip
+    assert status == 0
+    assert "| random | " in capsys.readouterr().out.split("Paired")[1]
+    with open(tmp_path / "new" / "results.csv", newline="") as handle:
+        assert sorted({row["agent"] for row in csv.DictReader(handle)}) == ["frontier", "random", "revisit"]
+
+
+@pytest.mark.parametrize(
+    "change, message",
+    [
+        ({"episodes": 2}, "seeds"),
+        ({"seed": 6}, "seeds"),
+        ({"env_id": "SeifExplore-v2"}, "env_id"),
+        ({"env_kwargs": {"max_episode_steps": 13}}, "env_kwargs"),
+        ({"specs": ["revisit"]}, "already has the agents"),
+    ],
+)
+def test_a_stored_run_of_another_task_or_seeds_is_refused_before_any_episode(tmp_path, change, message) -> None:
+    kwargs = {"max_episode_steps": 12}
+    rows, summary = evaluate.evaluate_agents(["revisit"], 3, 5, "SeifExplore-v1", kwargs)
+    evaluate.write_outputs(rows, summary, tmp_path / "stored")
+    arguments = {"specs": ["random"], "episodes": 3, "seed": 5, "env_id": "SeifExplore-v1", "env_kwargs": kwargs}
+    arguments.update(change)
+
+    class Refused(Exception):
+        pass
+
+    def no_episode(*_: object, **__: object) -> None:
+        raise Refused  # an episode would have run
+
+    executor = evaluate.Executor()
+    executor.map = no_episode  # type: ignore[method-assign]
+    with pytest.raises(ValueError, match=message):
+        evaluate.evaluate_agents(arguments["specs"], arguments["episodes"], arguments["seed"], arguments["env_id"],
+                                 arguments["env_kwargs"], stored_run=tmp_path / "stored", executor=executor)  # fmt: skip
+    with pytest.raises(FileNotFoundError, match="summary.json"):
+        evaluate.evaluate_agents(["random"], 3, 5, "SeifExplore-v1", kwargs, stored_run=tmp_path / "nothing")
+
+
 def test_quiet_evaluation_writes_nothing_on_stderr(tmp_path, capsys) -> None:
     status = evaluate.main(["--agents", "frontier,random", "--episodes", "2", "--seed", "1", "--env", "SeifExplore-v1",
                             "--env-kwargs", '{"max_episode_steps": 5}', "--out", str(tmp_path), "--quiet"])  # fmt: skip

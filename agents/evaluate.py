@@ -673,8 +673,10 @@ def load_stored_run(
 
     Lets a run pair its agents with agents already run on the same seeds (the
     baselines' held-out episodes of a declared experiment, say) instead of
-    running them again. Episodes are deterministic given the env, its
-    arguments and the seed, so the stored ones are what a new run would give.
+    running them again. On one machine an episode is determined by the env,
+    its arguments, the agent and the seed, so the stored ones are what a new
+    run there would give (another machine may round a planner's near-tie
+    differently: ``docs/benchmark.md``).
 
     Parameters
     ----------

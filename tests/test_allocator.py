@@ -43,11 +43,12 @@ def _refaults(mode: str) -> int:
 
 @pytest.mark.skipif(not GLIBC, reason="glibc's mallopt: the function returns False elsewhere (tested below)")
 def test_a_freed_block_is_reused_without_faulting_its_pages_in_again():
-    pages = (64 << 20) // 4096
-    # glibc's default: the block is mapped anew and every page faults in again (the control: this can fail)
-    assert _refaults("default") > pages // 2
+    # glibc's default: the block is mapped anew and its pages fault in again (the control: this can fail);
+    # 16 384 faults of 4 KiB pages, or 32 where the kernel backs the mapping with 2 MiB pages
+    default = _refaults("default")
+    assert default >= 32
     # kept: the second block is the first one's pages, already in memory
-    assert _refaults("keep") < pages // 20
+    assert _refaults("keep") * 10 < default
 
 
 def test_keep_freed_memory_says_whether_it_acted():

@@ -667,7 +667,11 @@ def _seed_range(seeds: Any) -> str:
 
 
 def load_stored_run(
-    folder: str | os.PathLike, env_id: str, env_kwargs: Mapping[str, Any], seeds: Sequence[int]
+    folder: str | os.PathLike,
+    env_id: str,
+    env_kwargs: Mapping[str, Any],
+    seeds: Sequence[int],
+    labels: Sequence[str] = (),
 ) -> tuple[list[dict[str, Any]], dict[str, Any]]:
     """The episodes of an earlier run (an ``--out`` folder of this command), checked to be of the same task.
 
@@ -685,6 +689,8 @@ def load_stored_run(
     env_id, env_kwargs, seeds
         This run's: the stored run must have been made with the same ones and
         the same :data:`SCHEMA_VERSION`.
+    labels : sequence of str
+        This run's agent labels, which the stored run's may not repeat.
 
     Returns
     -------
@@ -695,18 +701,27 @@ def load_stored_run(
 
     Raises
     ------
+    TypeError
+        If ``folder`` is not a path.
     FileNotFoundError
         If either file is missing.
     ValueError
-        If the stored run's schema, env id, env arguments or seeds differ
-        from this run's, or its rows do not cover every agent on every seed.
+        If either file cannot be read as this command writes it, the stored
+        run's schema, env id, env arguments or seeds differ from this run's,
+        its rows do not cover every agent on every seed, or its labels repeat
+        one of ``labels``.
     """
+    if not isinstance(folder, (str, os.PathLike)):
+        raise TypeError(f"stored_run must be a folder's path, got {type(folder).__name__}")
     path = Path(folder)
     summary_path, results_path = path / "summary.json", path / "results.csv"
     for needed in (summary_path, results_path):
         if not needed.is_file():
             raise FileNotFoundError(f"stored_run: {needed} does not exist (an agents.evaluate --out folder?)")
-    stored = json.loads(summary_path.read_text())
+    try:
+        stored = json.loads(summary_path.read_text())
+    except json.JSONDecodeError as error:
+        raise ValueError(f"stored_run: {summary_path} is not JSON ({error})") from error
     expected_seeds = [int(seed) for seed in seeds]
     checks: dict[str, Any] = {"schema_version": SCHEMA_VERSION, "env_id": env_id, "env_kwargs": dict(env_kwargs),
                               "seeds": expected_seeds}  # fmt: skip
@@ -720,9 +735,17 @@ def load_stored_run(
         reader = csv.DictReader(handle)
         if tuple(reader.fieldnames or ()) != RESULT_COLUMNS:
             raise ValueError(f"stored_run: {results_path} does not have the columns {RESULT_COLUMNS}")
-        rows = [{column: value if column == "agent" else int(value) if column in INTEGER_COLUMNS else float(value)
-                 for column, value in row.items()} for row in reader]  # fmt: skip
+        try:
+            rows = [{column: value if column == "agent" else int(value) if column in INTEGER_COLUMNS else float(value)
+                     for column, value in row.items()} for row in reader]  # fmt: skip
+        except (TypeError, ValueError) as error:
+            raise ValueError(
+                f"stored_run: {results_path} holds a value this command does not write ({error})"
+            ) from error
     agents = stored["agents"]
+    repeated = sorted(set(agents) & set(labels))
+    if repeated:
+        raise ValueError(f"stored_run: {path} already has the agents {repeated}: label this run's otherwise")
     for label in agents:
         if sorted(row["seed"] for row in rows if row["agent"] == label) != sorted(expected_seeds):
             raise ValueError(f"stored_run: {results_path} lacks episodes of {label!r} on this run's seeds")
@@ -792,10 +815,8 @@ def evaluate_agents(
     stored_rows: list[dict[str, Any]] = []
     stored_agents: dict[str, Any] = {}
     if stored_run is not None:  # read and checked before any episode runs
-        stored_rows, stored_agents = load_stored_run(stored_run, env_id, env_kwargs, seeds)
-        repeated = sorted(set(stored_agents) & {label for label, _ in labelled})
-        if repeated:
-            raise ValueError(f"stored_run: {stored_run} already has the agents {repeated}: label this run's otherwise")
+        stored_rows, stored_agents = load_stored_run(stored_run, env_id, env_kwargs, seeds,
+                                                     [label for label, _ in labelled])  # fmt: skip
         baselines += [label for label, entry in stored_agents.items() if entry["spec"] in BASELINES]
     # tasks: runs of consecutive seeds of one agent; an agent whose state carries over between
     # episodes (random's generator) gets all of its seeds in one task, as in a serial run
@@ -1019,15 +1040,14 @@ def main(argv: Sequence[str] | None = None) -> int:
             check_agent_spec(target)
     except (ValueError, FileNotFoundError) as error:
         parser.error(str(error))
-    seeds = list(range(args.seed, args.seed + args.episodes))
-    if args.stored_run is not None:
+    if args.stored_run is not None:  # its errors as the command's, before any episode runs
+        seeds = list(range(args.seed, args.seed + args.episodes))
         try:
-            stored_labels = set(load_stored_run(args.stored_run, args.env, args.env_kwargs, seeds)[1])
+            load_stored_run(
+                args.stored_run, args.env, args.env_kwargs, seeds, [label for label, _ in agent_labels(specs)]
+            )
         except (ValueError, FileNotFoundError) as error:
             parser.error(str(error).replace("stored_run:", "--stored-run:", 1))
-        repeated = sorted(stored_labels & {label for label, _ in agent_labels(specs)})
-        if repeated:
-            parser.error(f"--stored-run: {args.stored_run} already has the agents {repeated}")
     executor = executor_from_arguments(args, parser)
     started = time.perf_counter()
     rows, summary = evaluate_agents(specs, args.episodes, args.seed, args.env, args.env_kwargs, verbose=not args.quiet,

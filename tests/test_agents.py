@@ -569,6 +569,12 @@ def test_a_stored_run_of_another_task_or_seeds_is_refused_before_any_episode(tmp
                                  arguments["env_kwargs"], stored_run=tmp_path / "stored", executor=executor)  # fmt: skip
     with pytest.raises(FileNotFoundError, match="summary.json"):
         evaluate.evaluate_agents(["random"], 3, 5, "SeifExplore-v1", kwargs, stored_run=tmp_path / "nothing")
+    with pytest.raises(TypeError, match="stored_run must be a folder's path"):
+        evaluate.evaluate_agents(["random"], 3, 5, "SeifExplore-v1", kwargs, stored_run=3)  # type: ignore[arg-type]
+    (tmp_path / "stored" / "summary.json").write_text("{not json")
+    with pytest.raises(ValueError, match="is not JSON"):
+        evaluate.evaluate_agents(["random"], 3, 5, "SeifExplore-v1", kwargs, stored_run=tmp_path / "stored",
+                                 executor=executor)  # fmt: skip
 
 
 def test_quiet_evaluation_writes_nothing_on_stderr(tmp_path, capsys) -> None:

@@ -136,6 +136,9 @@ __all__ = [
     "PAIRED_STAT_KEYS",
     "SCHEMA_VERSION",
     "INTEGER_COLUMNS",
+    "READABLE_SCHEMA_VERSIONS",
+    "RECIPE_STAT_KEYS",
+    "RECIPE_KEYS",
     "SB3Agent",
     "sb3_algorithm",
     "agent_label",
@@ -147,6 +150,9 @@ __all__ = [
     "paired_difference",
     "paired_verdict",
     "paired_comparison",
+    "recipe_difference",
+    "recipe_comparison",
+    "read_run",
     "load_stored_run",
     "evaluate_agents",
     "write_outputs",
@@ -158,6 +164,8 @@ __all__ = [
 
 #: Version of the output schema below; bumped on any change of it (2: ``paired``; 3: ``stored_run``).
 SCHEMA_VERSION = 3
+#: Schemas whose ``results.csv`` and ``summary.json["agents"]`` this version reads as its own (3 only added a key).
+READABLE_SCHEMA_VERSIONS: tuple[int, ...] = (2, 3)
 #: Columns of ``results.csv`` (one row per agent × episode), in order.
 RESULT_COLUMNS: tuple[str, ...] = (
     "agent",
@@ -205,6 +213,11 @@ PAIRED_KEYS: tuple[str, ...] = ("metric", "reference", "confidence", "bootstrap"
 #: Keys of a paired difference (:func:`paired_difference`); ``paired["agents"][label]`` adds ``verdict``.
 PAIRED_STAT_KEYS: tuple[str, ...] = ("mean", "std", "ci95_low", "ci95_high", "n", "bootstrap_ci95_low",
                                      "bootstrap_ci95_high")  # fmt: skip
+#: Keys of a recipe's difference over its training seeds and the episodes (:func:`recipe_difference`).
+RECIPE_STAT_KEYS: tuple[str, ...] = ("mean", "seed_means", "std_seeds", "std_episodes", "standard_error", "dof",
+                                     "ci95_low", "ci95_high", "n_seeds", "n_episodes")  # fmt: skip
+#: Keys of :func:`recipe_comparison`'s result.
+RECIPE_KEYS: tuple[str, ...] = ("metric", "reference", "confidence", "members", "recipe")
 
 #: Columns of the printed Markdown table: (metric, header).
 TABLE_COLUMNS: tuple[tuple[str, str], ...] = (
@@ -646,6 +659,170 @@ def paired_comparison(rows: Sequence[Mapping[str, Any]], baselines: Sequence[str
     return result
 
 
+def recipe_difference(values: Any, reference: Sequence[float], confidence: float = 0.95) -> dict[str, Any]:
+    """Mean difference of a recipe's models to a reference over training seeds and episodes, with its interval.
+
+    The question "does this recipe beat the baseline?" is about the recipe's
+    expected lead over *both* of its random draws: the training seed that made
+    a model and the episode it is scored on. This interval treats the two as
+    crossed random samples, so a recipe beats only if its lead would hold for
+    other training seeds and other episodes of the task.
+
+    Parameters
+    ----------
+    values : array_like, shape (n_seeds, n_episodes)
+        ``values[s, e]``: the metric of the model of training seed ``s`` on
+        episode ``e`` (lower is better).
+    reference : sequence of float, shape (n_episodes,)
+        The reference agent's metric on the same episodes, in the same order.
+    confidence : float
+        Coverage of the interval, in ``(0, 1)``.
+
+    Returns
+    -------
+    dict
+        The keys :data:`RECIPE_STAT_KEYS`: ``mean`` (of ``d = values −
+        reference`` over every cell), ``seed_means`` (per seed, list),
+        ``std_seeds`` (of the seed means, ``ddof=1``), ``std_episodes`` (of
+        the episode means over seeds, ``ddof=1``), ``standard_error``,
+        ``dof`` (Welch–Satterthwaite), ``ci95_low``, ``ci95_high`` (the t
+        interval at ``confidence``), ``n_seeds``, ``n_episodes``.
+
+    Raises
+    ------
+    ValueError
+        If ``values`` is not two-dimensional with at least two seeds and two
+        episodes, ``reference`` does not have one number per episode, either
+        holds a non-finite number, or ``confidence`` is out of range.
+
+    Notes
+    -----
+    With ``d[s, e]`` over ``S`` seeds and ``E`` episodes, a model of crossed
+    random effects ``d[s, e] = δ + a_s + b_e + ε_se`` gives ``Var(mean d) =
+    σ_a²/S + σ_b²/E + σ_ε²/(SE)``. The estimate here is
+
+    ``V = var_s(mean_e d)/S + var_e(mean_s d)/E``,
+
+    whose expectation is ``σ_a²/S + σ_b²/E + 2σ_ε²/(SE)``: the interaction
+    counted twice, so a little conservative (``σ_ε²/(SE)`` is small against the
+    other two at hundreds of episodes). The interval is ``mean(d) ± t_{(1+c)/2,
+    ν} √V`` with Welch–Satterthwaite's ``ν = V² / (v_s²/(S−1) + v_e²/(E−1))``,
+    ``v_s`` and ``v_e`` the two terms of ``V``. Two limits check it: seeds
+    that all give the same episodes leave only the episode term, and the
+    interval is :func:`paired_difference`'s of the one model; a single episode
+    set's seed means alone give the seed term, a t interval over seeds.
+
+    Examples
+    --------
+    >>> d = recipe_difference([[1.0, 2.0, 4.0], [1.0, 2.0, 4.0]], [0.5, 1.0, 3.0])  # both seeds alike
+    >>> p = paired_difference([1.0, 2.0, 4.0], [0.5, 1.0, 3.0])
+    >>> (round(d["ci95_low"], 6), round(d["ci95_high"], 6)) == (round(p["ci95_low"], 6), round(p["ci95_high"], 6))
+    True
+    """
+    try:
+        table = np.asarray(values, dtype=np.float64)
+        ref = np.asarray(reference, dtype=np.float64)
+    except (TypeError, ValueError) as error:
+        raise ValueError(f"values and reference must be numbers ({error})") from error
+    if table.ndim != 2 or table.shape[0] < 2 or table.shape[1] < 2:
+        raise ValueError(f"values must be (n_seeds, n_episodes) with at least 2 of each, got shape {table.shape}")
+    if ref.shape != (table.shape[1],):
+        raise ValueError(f"reference must hold one number per episode ({table.shape[1]}), got shape {ref.shape}")
+    if not (np.isfinite(table).all() and np.isfinite(ref).all()):
+        raise ValueError("values and reference must be finite")
+    if not 0.0 < confidence < 1.0:
+        raise ValueError(f"confidence must lie in (0, 1), got {confidence!r}")
+    d = table - ref[None, :]
+    n_seeds, n_episodes = d.shape
+    seed_means, episode_means = d.mean(axis=1), d.mean(axis=0)
+    std_seeds, std_episodes = float(seed_means.std(ddof=1)), float(episode_means.std(ddof=1))
+    seed_term, episode_term = std_seeds**2 / n_seeds, std_episodes**2 / n_episodes
+    variance = seed_term + episode_term
+    mean = float(d.mean())
+    if variance > 0.0:
+        dof = variance**2 / (seed_term**2 / (n_seeds - 1) + episode_term**2 / (n_episodes - 1))
+        half = float(stats.t.ppf(0.5 + 0.5 * confidence, dof) * math.sqrt(variance))
+    else:  # every cell the same difference: no spread to estimate
+        dof, half = math.inf, 0.0
+    return {
+        "mean": mean,
+        "seed_means": [float(value) for value in seed_means],
+        "std_seeds": std_seeds,
+        "std_episodes": std_episodes,
+        "standard_error": math.sqrt(variance),
+        "dof": float(dof),
+        "ci95_low": mean - half,
+        "ci95_high": mean + half,
+        "n_seeds": int(n_seeds),
+        "n_episodes": int(n_episodes),
+    }
+
+
+def recipe_comparison(rows: Sequence[Mapping[str, Any]], members: Sequence[str], baselines: Sequence[str],
+                      metric: str = PAIRED_METRIC, confidence: float = 0.95) -> dict[str, Any]:  # fmt: skip
+    """A recipe's models (one per training seed) against the best baseline: each on its own, and together.
+
+    Parameters
+    ----------
+    rows : sequence of dict
+        :func:`evaluate_agents`' rows (``agent``, ``seed`` and ``metric``),
+        the members and the baselines on the same episodes.
+    members : sequence of str
+        The labels of the recipe's models, one per training seed (at least 2).
+    baselines : sequence of str
+        The labels that are baselines; the one of lowest mean ``metric`` is
+        the reference.
+    metric : str
+        A column of the rows where lower is better.
+    confidence : float
+        Coverage of the intervals.
+
+    Returns
+    -------
+    dict
+        The keys :data:`RECIPE_KEYS`: ``metric``, ``reference``,
+        ``confidence``, ``members`` (label -> :func:`paired_difference` plus
+        ``verdict``, each model on its own) and ``recipe``
+        (:func:`recipe_difference` of all of them plus ``verdict``,
+        :func:`paired_verdict` of its interval).
+
+    Raises
+    ------
+    ValueError
+        If a member or every baseline is missing from the rows, a label is both,
+        members repeat, fewer than two are given, or the agents did not run on
+        the same seeds.
+    """
+    members, baselines = list(members), list(baselines)
+    if len(members) < 2 or len(set(members)) != len(members):
+        raise ValueError(f"members must be at least two distinct labels, got {members}")
+    if set(members) & set(baselines):
+        raise ValueError(f"members and baselines share {sorted(set(members) & set(baselines))}")
+    present = {row["agent"] for row in rows}
+    missing = [label for label in members if label not in present]
+    if missing:
+        raise ValueError(f"members {missing} have no rows")
+    if not set(baselines) & present:
+        raise ValueError(f"baselines: none of {baselines} has rows")
+    wanted = set(members) | set(baselines)
+    paired = paired_comparison([row for row in rows if row["agent"] in wanted], baselines, metric, confidence)
+    reference = paired["reference"]
+    per_agent: dict[str, dict[int, float]] = {}
+    for row in rows:
+        if row["agent"] in wanted:
+            per_agent.setdefault(row["agent"], {})[int(row["seed"])] = float(row[metric])
+    seeds = sorted(per_agent[reference])
+    recipe = recipe_difference([[per_agent[label][s] for s in seeds] for label in members],
+                               [per_agent[reference][s] for s in seeds], confidence)  # fmt: skip
+    return {
+        "metric": metric,
+        "reference": reference,
+        "confidence": confidence,
+        "members": {label: paired["agents"][label] for label in members},
+        "recipe": {**recipe, "verdict": paired_verdict(recipe)},
+    }
+
+
 def _curve(traces: Sequence[Sequence[float]]) -> dict[str, list]:
     longest = max(len(trace) for trace in traces)
     padded = np.array([list(trace) + [trace[-1]] * (longest - len(trace)) for trace in traces], dtype=np.float64)
@@ -687,8 +864,8 @@ def load_stored_run(
     folder : str or PathLike
         Holds ``results.csv`` and ``summary.json`` of the earlier run.
     env_id, env_kwargs, seeds
-        This run's: the stored run must have been made with the same ones and
-        the same :data:`SCHEMA_VERSION`.
+        This run's: the stored run must have been made with the same ones, in
+        a schema of :data:`READABLE_SCHEMA_VERSIONS` (:func:`read_run`).
     labels : sequence of str
         This run's agent labels, which the stored run's may not repeat.
 
@@ -707,49 +884,82 @@ def load_stored_run(
         If either file is missing.
     ValueError
         If either file cannot be read as this command writes it, the stored
-        run's schema, env id, env arguments or seeds differ from this run's,
+        run's schema is not readable, its env id, env arguments or seeds differ from this run's,
         its rows do not cover every agent on every seed, or its labels repeat
         one of ``labels``.
     """
-    if not isinstance(folder, (str, os.PathLike)):
-        raise TypeError(f"stored_run must be a folder's path, got {type(folder).__name__}")
+    rows, stored = read_run(folder, "stored_run")
     path = Path(folder)
-    summary_path, results_path = path / "summary.json", path / "results.csv"
-    for needed in (summary_path, results_path):
-        if not needed.is_file():
-            raise FileNotFoundError(f"stored_run: {needed} does not exist (an agents.evaluate --out folder?)")
-    try:
-        stored = json.loads(summary_path.read_text())
-    except json.JSONDecodeError as error:
-        raise ValueError(f"stored_run: {summary_path} is not JSON ({error})") from error
     expected_seeds = [int(seed) for seed in seeds]
-    checks: dict[str, Any] = {"schema_version": SCHEMA_VERSION, "env_id": env_id, "env_kwargs": dict(env_kwargs),
-                              "seeds": expected_seeds}  # fmt: skip
+    checks: dict[str, Any] = {"env_id": env_id, "env_kwargs": dict(env_kwargs), "seeds": expected_seeds}
     for key, expected in checks.items():
         found = stored.get(key)
         if found != expected:
             if key == "seeds":  # a range, not a thousand numbers
                 expected, found = _seed_range(expected), _seed_range(found)
             raise ValueError(f"stored_run: {path} was made with {key} {found!r}, this run has {expected!r}")
-    with open(results_path, newline="") as handle:
-        reader = csv.DictReader(handle)
-        if tuple(reader.fieldnames or ()) != RESULT_COLUMNS:
-            raise ValueError(f"stored_run: {results_path} does not have the columns {RESULT_COLUMNS}")
-        try:
-            rows = [{column: value if column == "agent" else int(value) if column in INTEGER_COLUMNS else float(value)
-                     for column, value in row.items()} for row in reader]  # fmt: skip
-        except (TypeError, ValueError) as error:
-            raise ValueError(
-                f"stored_run: {results_path} holds a value this command does not write ({error})"
-            ) from error
     agents = stored["agents"]
     repeated = sorted(set(agents) & set(labels))
     if repeated:
         raise ValueError(f"stored_run: {path} already has the agents {repeated}: label this run's otherwise")
     for label in agents:
         if sorted(row["seed"] for row in rows if row["agent"] == label) != sorted(expected_seeds):
-            raise ValueError(f"stored_run: {results_path} lacks episodes of {label!r} on this run's seeds")
+            raise ValueError(f"stored_run: {path / 'results.csv'} lacks episodes of {label!r} on this run's seeds")
     return rows, agents
+
+
+def read_run(folder: str | os.PathLike, name: str = "folder") -> tuple[list[dict[str, Any]], dict[str, Any]]:
+    """The rows and summary of an ``--out`` folder of this command, as written (schemas :data:`READABLE_SCHEMA_VERSIONS`).
+
+    Parameters
+    ----------
+    folder : str or PathLike
+        Holds ``results.csv`` and ``summary.json``.
+    name : str
+        What the folder is to the caller, the start of every error message.
+
+    Returns
+    -------
+    rows : list of dict
+        The ``results.csv`` rows (keys :data:`RESULT_COLUMNS`, typed as written).
+    summary : dict
+        ``summary.json``.
+
+    Raises
+    ------
+    TypeError
+        If ``folder`` is not a path.
+    FileNotFoundError
+        If either file is missing.
+    ValueError
+        If either file cannot be read as this command writes it, or its schema
+        is not one of :data:`READABLE_SCHEMA_VERSIONS`.
+    """
+    if not isinstance(folder, (str, os.PathLike)):
+        raise TypeError(f"{name} must be a folder's path, got {type(folder).__name__}")
+    path = Path(folder)
+    summary_path, results_path = path / "summary.json", path / "results.csv"
+    for needed in (summary_path, results_path):
+        if not needed.is_file():
+            raise FileNotFoundError(f"{name}: {needed} does not exist (an agents.evaluate --out folder?)")
+    try:
+        summary = json.loads(summary_path.read_text())
+    except json.JSONDecodeError as error:
+        raise ValueError(f"{name}: {summary_path} is not JSON ({error})") from error
+    if not isinstance(summary, dict) or summary.get("schema_version") not in READABLE_SCHEMA_VERSIONS:
+        found = summary.get("schema_version") if isinstance(summary, dict) else None
+        raise ValueError(f"{name}: {path} was made with schema_version {found!r}, "
+                         f"this command reads {READABLE_SCHEMA_VERSIONS}")  # fmt: skip
+    with open(results_path, newline="") as handle:
+        reader = csv.DictReader(handle)
+        if tuple(reader.fieldnames or ()) != RESULT_COLUMNS:
+            raise ValueError(f"{name}: {results_path} does not have the columns {RESULT_COLUMNS}")
+        try:
+            rows = [{column: value if column == "agent" else int(value) if column in INTEGER_COLUMNS else float(value)
+                     for column, value in row.items()} for row in reader]  # fmt: skip
+        except (TypeError, ValueError) as error:
+            raise ValueError(f"{name}: {results_path} holds a value this command does not write ({error})") from error
+    return rows, summary
 
 
 def evaluate_agents(

@@ -1,0 +1,179 @@
+r"""Judge a training recipe by its models, one per training seed: ``python -m agents.recipe``.
+
+Usage::
+
+    python -m agents.recipe --runs runs/e9_held_out runs/eval_base_clu400 \
+        --members s120,s121,s122,s123,s124,s125 [--baselines frontier,revisit,info_gain] [--out DIR]
+
+``--runs`` are ``agents.evaluate --out`` folders of one env, env kwargs and
+seeds (the recipe's models in one, the baselines' stored episodes in another,
+say; no label may appear in two). ``--members`` are the labels of the
+recipe's models, one per training seed. The best baseline on these episodes
+(lowest mean final map error; by default among every baseline name found in
+the runs) is the reference. Printed and written to ``--out`` as
+``recipe.md`` and ``recipe.json`` (:func:`agents.evaluate.recipe_comparison`):
+
+* each model against the reference on its own (the paired per-episode
+  interval of :func:`agents.evaluate.paired_difference`), with the spread of
+  the models' means;
+* the recipe against the reference and against every other baseline: the
+  mean difference over the models and episodes with the interval of
+  :func:`agents.evaluate.recipe_difference`, which treats training seeds and
+  episodes as crossed random draws. The protocol's rule for a recipe
+  (``docs/benchmark.md``, "What counts as a result") reads this interval.
+
+Nothing runs here: the episodes are the runs' own.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from agents import BASELINES
+from agents.evaluate import PAIRED_METRIC, paired_verdict, read_run, recipe_comparison, recipe_difference, signed
+
+__all__ = ["load_runs", "judge_recipe", "recipe_table", "main"]
+
+
+def load_runs(folders: Sequence[str | Path]) -> tuple[list[dict[str, Any]], dict[str, Any]]:
+    """The rows of several ``agents.evaluate --out`` folders of one task and the same seeds.
+
+    Parameters
+    ----------
+    folders : sequence of str or Path
+        At least one folder (:func:`agents.evaluate.read_run`).
+
+    Returns
+    -------
+    rows : list of dict
+        Every folder's rows, in the order given.
+    task : dict
+        ``env_id``, ``env_kwargs`` and ``seeds`` the folders share.
+
+    Raises
+    ------
+    ValueError
+        If no folder is given, a folder cannot be read, two differ in env id,
+        env arguments or seeds, or a label appears in two.
+    """
+    if not folders:
+        raise ValueError("runs: give at least one agents.evaluate --out folder")
+    rows: list[dict[str, Any]] = []
+    task: dict[str, Any] | None = None
+    owner: dict[str, str] = {}
+    for folder in folders:
+        folder_rows, summary = read_run(folder, "runs")
+        this = {key: summary.get(key) for key in ("env_id", "env_kwargs", "seeds")}
+        if task is None:
+            task = this
+        for key, expected in task.items():
+            if this[key] != expected:
+                raise ValueError(f"runs: {folder} was made with another {key} than {folders[0]}")
+        for label in summary["agents"]:
+            if label in owner:
+                raise ValueError(f"runs: the label {label!r} is in both {owner[label]} and {folder}")
+            owner[label] = str(folder)
+        rows.extend(folder_rows)
+    assert task is not None
+    return rows, task
+
+
+def judge_recipe(rows: Sequence[Mapping[str, Any]], members: Sequence[str], baselines: Sequence[str] | None = None,
+                 metric: str = PAIRED_METRIC) -> dict[str, Any]:  # fmt: skip
+    """:func:`agents.evaluate.recipe_comparison`, plus the recipe against every baseline and the models' spread.
+
+    ``baselines`` defaults to every name of :data:`agents.BASELINES` found in
+    ``rows``. Adds ``against`` (baseline -> :func:`agents.evaluate.recipe_difference`
+    of the recipe's models to it) and ``spread`` (the lowest, mean and highest
+    of the models' mean ``metric``).
+    """
+    present = {row["agent"] for row in rows}
+    chosen = [name for name in BASELINES if name in present] if baselines is None else list(baselines)
+    result = recipe_comparison(rows, members, chosen, metric)
+    per_agent: dict[str, dict[int, float]] = {}
+    for row in rows:
+        per_agent.setdefault(row["agent"], {})[int(row["seed"])] = float(row[metric])
+    seeds = sorted(per_agent[result["reference"]])
+    table = [[per_agent[label][s] for s in seeds] for label in members]
+    result["against"] = {
+        name: recipe_difference(table, [per_agent[name][s] for s in seeds], result["confidence"])
+        for name in chosen
+        if name in per_agent
+    }
+    means = [float(np.mean(values)) for values in table]
+    result["spread"] = {"low": min(means), "mean": float(np.mean(means)), "high": max(means),
+                        "members": dict(zip(members, means))}  # fmt: skip
+    return result
+
+
+def recipe_table(result: Mapping[str, Any], digits: int = 3) -> str:
+    """Markdown: each model against the reference, then the recipe against every baseline."""
+    reference = result["reference"]
+    lines = [f"| model | mean | − {reference}, paired 95% | verdict |", "|---|--:|--:|---|"]
+    for label, paired in result["members"].items():
+        mean = result["spread"]["members"][label]
+        interval = f"[{signed(paired['ci95_low'], digits)}, {signed(paired['ci95_high'], digits)}]"
+        lines.append(f"| {label} | {mean:.{digits}f} | {signed(paired['mean'], digits)} {interval} | "
+                     f"{paired['verdict']} |")  # fmt: skip
+    recipe = result["recipe"]
+    beating = sum(paired["verdict"] == "beats" for paired in result["members"].values())
+    spread = result["spread"]
+    lines += ["", f"{beating} of {len(result['members'])} models beat {reference} on their own; their means "
+              f"{spread['low']:.{digits}f}–{spread['high']:.{digits}f} (mean {spread['mean']:.{digits}f}).", "",
+              f"| recipe against | difference over {recipe['n_seeds']} seeds × {recipe['n_episodes']} episodes, "
+              "95% | sd of seed means | sd of episode means | dof | verdict |", "|---|--:|--:|--:|--:|---|"]  # fmt: skip
+    for name, difference in result["against"].items():
+        verdict = paired_verdict(difference)
+        interval = f"[{signed(difference['ci95_low'], digits)}, {signed(difference['ci95_high'], digits)}]"
+        lines.append(f"| {name}{' (best)' if name == reference else ''} | {signed(difference['mean'], digits)} "
+                     f"{interval} | {difference['std_seeds']:.{digits}f} | {difference['std_episodes']:.{digits}f} | "
+                     f"{difference['dof']:.1f} | {verdict} |")  # fmt: skip
+    return "\n".join(lines)
+
+
+def _parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="python -m agents.recipe",
+                                     description="Judge a training recipe by its models, one per training seed, "
+                                     "against the best baseline on the same episodes.")  # fmt: skip
+    parser.add_argument("--runs", nargs="+", required=True, metavar="DIR",
+                        help="agents.evaluate --out folders of one env, env kwargs and seeds")  # fmt: skip
+    parser.add_argument("--members", required=True, help="comma-separated labels of the recipe's models")
+    parser.add_argument("--baselines", default=None,
+                        help="comma-separated baselines (default: every baseline name in the runs)")  # fmt: skip
+    parser.add_argument("--out", default=None, metavar="DIR", help="also write recipe.md and recipe.json here")
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Command-line entry point; returns the exit status."""
+    parser = _parser()
+    args = parser.parse_args(argv)
+    members = [label.strip() for label in args.members.split(",") if label.strip()]
+    baselines = None if args.baselines is None else [b.strip() for b in args.baselines.split(",") if b.strip()]
+    try:
+        rows, task = load_runs(args.runs)
+        result = judge_recipe(rows, members, baselines)
+    except (ValueError, FileNotFoundError, TypeError) as error:
+        parser.error(str(error))
+    table = recipe_table(result)
+    kwargs = f" {json.dumps(task['env_kwargs'])}" if task["env_kwargs"] else ""
+    header = f"{task['env_id']}{kwargs}, {len(task['seeds'])} episodes, final map error (m)\n"
+    print(header)
+    print(table)
+    if args.out is not None:
+        out = Path(args.out)
+        out.mkdir(parents=True, exist_ok=True)
+        (out / "recipe.md").write_text(header + "\n" + table + "\n")
+        (out / "recipe.json").write_text(json.dumps({**task, "runs": [str(r) for r in args.runs], **result}, indent=2))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

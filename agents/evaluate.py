@@ -709,8 +709,9 @@ def recipe_difference(values: Any, reference: Sequence[float], confidence: float
     ν} √V`` with Welch–Satterthwaite's ``ν = V² / (v_s²/(S−1) + v_e²/(E−1))``,
     ``v_s`` and ``v_e`` the two terms of ``V``. Two limits check it: seeds
     that all give the same episodes leave only the episode term, and the
-    interval is :func:`paired_difference`'s of the one model; a single episode
-    set's seed means alone give the seed term, a t interval over seeds.
+    interval is :func:`paired_difference`'s of the one model; seeds that differ
+    by a constant on every episode leave only the seed term, a t interval over
+    the seeds' means.
 
     Examples
     --------

@@ -43,6 +43,14 @@ def test_recipe_difference_reduces_to_the_paired_interval_when_the_seeds_agree()
     assert (result["ci95_low"], result["ci95_high"]) == pytest.approx((paired["ci95_low"], paired["ci95_high"]))
 
 
+def test_recipe_difference_reduces_to_a_t_interval_over_seeds_when_the_episodes_agree() -> None:
+    seed_means = np.array([-0.05, -0.01, -0.04, 0.02, -0.03])
+    result = evaluate.recipe_difference(np.repeat(seed_means[:, None], 30, axis=1), np.zeros(30))
+    over_seeds = evaluate.mean_ci(seed_means)
+    assert result["std_episodes"] == pytest.approx(0.0, abs=1e-15) and result["dof"] == pytest.approx(4.0)
+    assert (result["ci95_low"], result["ci95_high"]) == pytest.approx((over_seeds["ci95_low"], over_seeds["ci95_high"]))
+
+
 def _coverage(seed_sd: float, episode_sd: float, noise_sd: float, seeds: int, episodes: int, trials: int,
               interval: str) -> float:  # fmt: skip
     rng = np.random.default_rng(2026)

@@ -217,7 +217,7 @@ PAIRED_STAT_KEYS: tuple[str, ...] = ("mean", "std", "ci95_low", "ci95_high", "n"
 RECIPE_STAT_KEYS: tuple[str, ...] = ("mean", "seed_means", "std_seeds", "std_episodes", "standard_error", "dof",
                                      "ci95_low", "ci95_high", "n_seeds", "n_episodes")  # fmt: skip
 #: Keys of :func:`recipe_comparison`'s result.
-RECIPE_KEYS: tuple[str, ...] = ("metric", "reference", "confidence", "members", "recipe")
+RECIPE_KEYS: tuple[str, ...] = ("metric", "reference", "confidence", "members", "recipe", "against", "spread")
 
 #: Columns of the printed Markdown table: (metric, header).
 TABLE_COLUMNS: tuple[tuple[str, str], ...] = (
@@ -637,9 +637,7 @@ def paired_comparison(rows: Sequence[Mapping[str, Any]], baselines: Sequence[str
     ValueError
         If the agents did not run on the same seeds.
     """
-    per_agent: dict[str, dict[int, float]] = {}
-    for row in rows:
-        per_agent.setdefault(row["agent"], {})[int(row["seed"])] = float(row[metric])
+    per_agent = _values_by_agent(rows, metric)
     means = {label: float(np.mean(list(values.values()))) for label, values in per_agent.items()}
     candidates = [label for label in per_agent if label in set(baselines)]
     reference = min(candidates, key=means.__getitem__) if candidates else None
@@ -759,33 +757,33 @@ def recipe_difference(values: Any, reference: Sequence[float], confidence: float
     }
 
 
+def _values_by_agent(rows: Sequence[Mapping[str, Any]], metric: str) -> dict[str, dict[int, float]]:
+    """The rows' ``metric`` per agent: label -> {seed: value}."""
+    values: dict[str, dict[int, float]] = {}
+    for row in rows:
+        values.setdefault(row["agent"], {})[int(row["seed"])] = float(row[metric])
+    return values
+
+
 def recipe_comparison(rows: Sequence[Mapping[str, Any]], members: Sequence[str], baselines: Sequence[str],
                       metric: str = PAIRED_METRIC, confidence: float = 0.95) -> dict[str, Any]:  # fmt: skip
-    """A recipe's models (one per training seed) against the best baseline: each on its own, and together.
+    """A recipe's models (one per training seed) against the baselines: each on its own, and together.
 
-    Parameters
-    ----------
-    rows : sequence of dict
-        :func:`evaluate_agents`' rows (``agent``, ``seed`` and ``metric``),
-        the members and the baselines on the same episodes.
-    members : sequence of str
-        The labels of the recipe's models, one per training seed (at least 2).
-    baselines : sequence of str
-        The labels that are baselines; the one of lowest mean ``metric`` is
-        the reference.
-    metric : str
-        A column of the rows where lower is better.
-    confidence : float
-        Coverage of the intervals.
+    ``rows``, ``baselines`` (the best of them is the reference), ``metric``
+    and ``confidence`` are as in :func:`paired_comparison`; ``members`` are
+    the labels of the recipe's models, one per training seed (at least 2).
 
     Returns
     -------
     dict
         The keys :data:`RECIPE_KEYS`: ``metric``, ``reference``,
         ``confidence``, ``members`` (label -> :func:`paired_difference` plus
-        ``verdict``, each model on its own) and ``recipe``
-        (:func:`recipe_difference` of all of them plus ``verdict``,
-        :func:`paired_verdict` of its interval).
+        ``verdict``, each model on its own against the reference), ``recipe``
+        (:func:`recipe_difference` of all of them to the reference plus
+        ``verdict``, :func:`paired_verdict` of its interval), ``against``
+        (baseline -> the same for every baseline with rows) and ``spread``
+        (``low``, ``mean``, ``high`` of the models' means, and ``members``:
+        label -> its mean).
 
     Raises
     ------
@@ -799,28 +797,35 @@ def recipe_comparison(rows: Sequence[Mapping[str, Any]], members: Sequence[str],
         raise ValueError(f"members must be at least two distinct labels, got {members}")
     if set(members) & set(baselines):
         raise ValueError(f"members and baselines share {sorted(set(members) & set(baselines))}")
-    present = {row["agent"] for row in rows}
-    missing = [label for label in members if label not in present]
+    values = _values_by_agent(rows, metric)
+    missing = [label for label in members if label not in values]
     if missing:
         raise ValueError(f"members {missing} have no rows")
-    if not set(baselines) & present:
+    present_baselines = [name for name in baselines if name in values]
+    if not present_baselines:
         raise ValueError(f"baselines: none of {baselines} has rows")
-    wanted = set(members) | set(baselines)
+    wanted = set(members) | set(present_baselines)
     paired = paired_comparison([row for row in rows if row["agent"] in wanted], baselines, metric, confidence)
-    reference = paired["reference"]
-    per_agent: dict[str, dict[int, float]] = {}
-    for row in rows:
-        if row["agent"] in wanted:
-            per_agent.setdefault(row["agent"], {})[int(row["seed"])] = float(row[metric])
-    seeds = sorted(per_agent[reference])
-    recipe = recipe_difference([[per_agent[label][s] for s in seeds] for label in members],
-                               [per_agent[reference][s] for s in seeds], confidence)  # fmt: skip
+    seeds = sorted(values[paired["reference"]])
+    table = [[values[label][s] for s in seeds] for label in members]
+    against = {}
+    for name in present_baselines:
+        difference = recipe_difference(table, [values[name][s] for s in seeds], confidence)
+        against[name] = {**difference, "verdict": paired_verdict(difference)}
+    means = {label: float(np.mean(row)) for label, row in zip(members, table)}
     return {
         "metric": metric,
-        "reference": reference,
+        "reference": paired["reference"],
         "confidence": confidence,
         "members": {label: paired["agents"][label] for label in members},
-        "recipe": {**recipe, "verdict": paired_verdict(recipe)},
+        "recipe": against[paired["reference"]],
+        "against": against,
+        "spread": {
+            "low": min(means.values()),
+            "mean": float(np.mean(list(means.values()))),
+            "high": max(means.values()),
+            "members": means,
+        },  # fmt: skip
     }
 
 

@@ -34,10 +34,8 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
 from agents import BASELINES
-from agents.evaluate import PAIRED_METRIC, paired_verdict, read_run, recipe_comparison, recipe_difference, signed
+from agents.evaluate import PAIRED_METRIC, read_run, recipe_comparison, signed
 
 __all__ = ["load_runs", "judge_recipe", "recipe_table", "main"]
 
@@ -87,30 +85,10 @@ def load_runs(folders: Sequence[str | Path]) -> tuple[list[dict[str, Any]], dict
 
 def judge_recipe(rows: Sequence[Mapping[str, Any]], members: Sequence[str], baselines: Sequence[str] | None = None,
                  metric: str = PAIRED_METRIC) -> dict[str, Any]:  # fmt: skip
-    """:func:`agents.evaluate.recipe_comparison`, plus the recipe against every baseline and the models' spread.
-
-    ``baselines`` defaults to every name of :data:`agents.BASELINES` found in
-    ``rows``. Adds ``against`` (baseline -> :func:`agents.evaluate.recipe_difference`
-    of the recipe's models to it) and ``spread`` (the lowest, mean and highest
-    of the models' mean ``metric``).
-    """
+    """:func:`agents.evaluate.recipe_comparison`, the baselines by default every name of :data:`agents.BASELINES` in ``rows``."""
     present = {row["agent"] for row in rows}
     chosen = [name for name in BASELINES if name in present] if baselines is None else list(baselines)
-    result = recipe_comparison(rows, members, chosen, metric)
-    per_agent: dict[str, dict[int, float]] = {}
-    for row in rows:
-        per_agent.setdefault(row["agent"], {})[int(row["seed"])] = float(row[metric])
-    seeds = sorted(per_agent[result["reference"]])
-    table = [[per_agent[label][s] for s in seeds] for label in members]
-    result["against"] = {
-        name: recipe_difference(table, [per_agent[name][s] for s in seeds], result["confidence"])
-        for name in chosen
-        if name in per_agent
-    }
-    means = [float(np.mean(values)) for values in table]
-    result["spread"] = {"low": min(means), "mean": float(np.mean(means)), "high": max(means),
-                        "members": dict(zip(members, means))}  # fmt: skip
-    return result
+    return recipe_comparison(rows, members, chosen, metric)
 
 
 def recipe_table(result: Mapping[str, Any], digits: int = 3) -> str:
@@ -130,7 +108,7 @@ def recipe_table(result: Mapping[str, Any], digits: int = 3) -> str:
               f"| recipe against | difference over {recipe['n_seeds']} seeds × {recipe['n_episodes']} episodes, "
               "95% | sd of seed means | sd of episode means | dof | verdict |", "|---|--:|--:|--:|--:|---|"]  # fmt: skip
     for name, difference in result["against"].items():
-        verdict = paired_verdict(difference)
+        verdict = difference["verdict"]
         interval = f"[{signed(difference['ci95_low'], digits)}, {signed(difference['ci95_high'], digits)}]"
         lines.append(f"| {name}{' (best)' if name == reference else ''} | {signed(difference['mean'], digits)} "
                      f"{interval} | {difference['std_seeds']:.{digits}f} | {difference['std_episodes']:.{digits}f} | "

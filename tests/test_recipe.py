@@ -112,6 +112,18 @@ def test_recipe_comparison_pairs_each_model_and_the_recipe_with_the_best_baselin
     alone = evaluate.paired_comparison(rows, ["frontier", "revisit", "info_gain"])
     assert result["members"] == {label: alone["agents"][label] for label in ("s1", "s2", "s3")}
     assert result["recipe"]["verdict"] == "beats" and result["recipe"]["mean"] == pytest.approx(-0.05, abs=0.01)
+    assert (
+        set(result["against"]) == {"frontier", "revisit", "info_gain"}
+        and result["against"]["info_gain"] is result["recipe"]
+    )
+    table = [[r["final_map_error"] for r in rows if r["agent"] == label] for label in ("s1", "s2", "s3")]
+    for name in ("frontier", "revisit"):
+        reference = [r["final_map_error"] for r in rows if r["agent"] == name]
+        assert result["against"][name] == {**evaluate.recipe_difference(table, reference), "verdict": "beats"}
+    assert result["spread"]["members"] == {
+        label: pytest.approx(np.mean(row)) for label, row in zip(("s1", "s2", "s3"), table)
+    }
+    assert result["spread"]["low"] <= result["spread"]["mean"] <= result["spread"]["high"]
     for members, baselines, message in [
         (["s1"], ["info_gain"], "at least two"),
         (["s1", "s1"], ["info_gain"], "at least two distinct"),

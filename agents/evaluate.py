@@ -884,15 +884,12 @@ def load_stored_run(
 
     Raises
     ------
-    TypeError
-        If ``folder`` is not a path.
-    FileNotFoundError
-        If either file is missing.
+    TypeError, FileNotFoundError
+        As :func:`read_run`.
     ValueError
-        If either file cannot be read as this command writes it, the stored
-        run's schema is not readable, its env id, env arguments or seeds differ from this run's,
-        its rows do not cover every agent on every seed, or its labels repeat
-        one of ``labels``.
+        As :func:`read_run`, and if the stored run's env id, env arguments or
+        seeds differ from this run's, its rows do not cover every agent on
+        every seed, or its labels repeat one of ``labels``.
     """
     rows, stored = read_run(folder, "stored_run")
     path = Path(folder)

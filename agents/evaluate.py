@@ -159,6 +159,7 @@ __all__ = [
     "markdown_table",
     "paired_table",
     "signed",
+    "signed_interval",
     "main",
 ]
 
@@ -855,6 +856,7 @@ def load_stored_run(
     env_kwargs: Mapping[str, Any],
     seeds: Sequence[int],
     labels: Sequence[str] = (),
+    name: str = "stored_run",
 ) -> tuple[list[dict[str, Any]], dict[str, Any]]:
     """The episodes of an earlier run (an ``--out`` folder of this command), checked to be of the same task.
 
@@ -874,6 +876,8 @@ def load_stored_run(
         a schema of :data:`READABLE_SCHEMA_VERSIONS` (:func:`read_run`).
     labels : sequence of str
         This run's agent labels, which the stored run's may not repeat.
+    name : str
+        The start of every error message, as in :func:`read_run`.
 
     Returns
     -------
@@ -891,7 +895,7 @@ def load_stored_run(
         seeds differ from this run's, its rows do not cover every agent on
         every seed, or its labels repeat one of ``labels``.
     """
-    rows, stored = read_run(folder, "stored_run")
+    rows, stored = read_run(folder, name)
     path = Path(folder)
     expected_seeds = [int(seed) for seed in seeds]
     checks: dict[str, Any] = {"env_id": env_id, "env_kwargs": dict(env_kwargs), "seeds": expected_seeds}
@@ -900,14 +904,14 @@ def load_stored_run(
         if found != expected:
             if key == "seeds":  # a range, not a thousand numbers
                 expected, found = _seed_range(expected), _seed_range(found)
-            raise ValueError(f"stored_run: {path} was made with {key} {found!r}, this run has {expected!r}")
+            raise ValueError(f"{name}: {path} was made with {key} {found!r}, this run has {expected!r}")
     agents = stored["agents"]
     repeated = sorted(set(agents) & set(labels))
     if repeated:
-        raise ValueError(f"stored_run: {path} already has the agents {repeated}: label this run's otherwise")
+        raise ValueError(f"{name}: {path} already has the agents {repeated}: label this run's otherwise")
     for label in agents:
         if sorted(row["seed"] for row in rows if row["agent"] == label) != sorted(expected_seeds):
-            raise ValueError(f"stored_run: {path / 'results.csv'} lacks episodes of {label!r} on this run's seeds")
+            raise ValueError(f"{name}: {path / 'results.csv'} lacks episodes of {label!r} on this run's seeds")
     return rows, agents
 
 
@@ -1117,6 +1121,11 @@ def signed(value: float | None, digits: int = 3) -> str:
     return "n/a" if value is None else f"{value:+.{digits}f}"
 
 
+def signed_interval(low: float | None, high: float | None, digits: int = 3) -> str:
+    """``[−0.070, −0.003]``, or ``n/a`` without an interval."""
+    return "n/a" if low is None or high is None else f"[{signed(low, digits)}, {signed(high, digits)}]"
+
+
 def paired_table(summary: Mapping[str, Any], digits: int = 3) -> str:
     """The paired comparison of ``summary`` (:func:`paired_comparison`) as a sentence and a Markdown table.
 
@@ -1139,12 +1148,9 @@ def paired_table(summary: Mapping[str, Any], digits: int = 3) -> str:
         "|---|--:|--:|" + ("--:|" if bootstrap else "") + "---|",
     ]
     for label, entry in paired["agents"].items():
-        interval = "n/a" if entry["ci95_low"] is None else (
-            f"[{signed(entry['ci95_low'], digits)}, {signed(entry['ci95_high'], digits)}]")  # fmt: skip
-        cells = [label, signed(entry["mean"], digits), interval]
+        cells = [label, signed(entry["mean"], digits), signed_interval(entry["ci95_low"], entry["ci95_high"], digits)]
         if bootstrap:
-            cells.append("n/a" if entry["bootstrap_ci95_low"] is None else
-                         f"[{signed(entry['bootstrap_ci95_low'], digits)}, {signed(entry['bootstrap_ci95_high'], digits)}]")  # fmt: skip
+            cells.append(signed_interval(entry["bootstrap_ci95_low"], entry["bootstrap_ci95_high"], digits))
         verdict = entry["verdict"]
         cells.append(f"{verdict} {reference}" if verdict in ("beats",) else verdict)
         lines.append("| " + " | ".join(cells) + " |")

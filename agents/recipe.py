@@ -35,7 +35,7 @@ from pathlib import Path
 from typing import Any
 
 from agents import BASELINES
-from agents.evaluate import PAIRED_METRIC, read_run, recipe_comparison, signed
+from agents.evaluate import PAIRED_METRIC, load_stored_run, read_run, recipe_comparison, signed, signed_interval
 
 __all__ = ["load_runs", "judge_recipe", "recipe_table", "main"]
 
@@ -58,28 +58,20 @@ def load_runs(folders: Sequence[str | Path]) -> tuple[list[dict[str, Any]], dict
     Raises
     ------
     ValueError
-        If no folder is given, a folder cannot be read, two differ in env id,
-        env arguments or seeds, or a label appears in two.
+        If no folder is given, a folder cannot be read, one differs from the
+        first in env id, env arguments or seeds, lacks episodes of one of its
+        agents, or repeats a label of one before it
+        (:func:`agents.evaluate.load_stored_run`).
     """
     if not folders:
         raise ValueError("runs: give at least one agents.evaluate --out folder")
+    _, first = read_run(folders[0], "runs")
+    task: dict[str, Any] = {key: first.get(key) for key in ("env_id", "env_kwargs", "seeds")}
     rows: list[dict[str, Any]] = []
-    task: dict[str, Any] | None = None
-    owner: dict[str, str] = {}
-    for folder in folders:
-        folder_rows, summary = read_run(folder, "runs")
-        this = {key: summary.get(key) for key in ("env_id", "env_kwargs", "seeds")}
-        if task is None:
-            task = this
-        for key, expected in task.items():
-            if this[key] != expected:
-                raise ValueError(f"runs: {folder} was made with another {key} than {folders[0]}")
-        for label in summary["agents"]:
-            if label in owner:
-                raise ValueError(f"runs: the label {label!r} is in both {owner[label]} and {folder}")
-            owner[label] = str(folder)
+    for folder in folders:  # each checked against the first, and its labels against those before it
+        folder_rows, _ = load_stored_run(folder, task["env_id"], task["env_kwargs"], task["seeds"],
+                                         [row["agent"] for row in rows], name="runs")  # fmt: skip
         rows.extend(folder_rows)
-    assert task is not None
     return rows, task
 
 
@@ -97,7 +89,7 @@ def recipe_table(result: Mapping[str, Any], digits: int = 3) -> str:
     lines = [f"| model | mean | − {reference}, paired 95% | verdict |", "|---|--:|--:|---|"]
     for label, paired in result["members"].items():
         mean = result["spread"]["members"][label]
-        interval = f"[{signed(paired['ci95_low'], digits)}, {signed(paired['ci95_high'], digits)}]"
+        interval = signed_interval(paired["ci95_low"], paired["ci95_high"], digits)
         lines.append(f"| {label} | {mean:.{digits}f} | {signed(paired['mean'], digits)} {interval} | "
                      f"{paired['verdict']} |")  # fmt: skip
     recipe = result["recipe"]
@@ -108,11 +100,10 @@ def recipe_table(result: Mapping[str, Any], digits: int = 3) -> str:
               f"| recipe against | difference over {recipe['n_seeds']} seeds × {recipe['n_episodes']} episodes, "
               "95% | sd of seed means | sd of episode means | dof | verdict |", "|---|--:|--:|--:|--:|---|"]  # fmt: skip
     for name, difference in result["against"].items():
-        verdict = difference["verdict"]
-        interval = f"[{signed(difference['ci95_low'], digits)}, {signed(difference['ci95_high'], digits)}]"
+        interval = signed_interval(difference["ci95_low"], difference["ci95_high"], digits)
         lines.append(f"| {name}{' (best)' if name == reference else ''} | {signed(difference['mean'], digits)} "
                      f"{interval} | {difference['std_seeds']:.{digits}f} | {difference['std_episodes']:.{digits}f} | "
-                     f"{difference['dof']:.1f} | {verdict} |")  # fmt: skip
+                     f"{difference['dof']:.1f} | {difference['verdict']} |")  # fmt: skip
     return "\n".join(lines)
 
 

@@ -167,8 +167,8 @@ def test_the_command_refuses_runs_of_other_episodes_or_repeated_labels(tmp_path,
     rows, summary = evaluate.evaluate_agents(["frontier"], 2, TASK["seed"], TASK["env_id"], TASK["env_kwargs"])
     evaluate.write_outputs(rows, summary, tmp_path / "fewer")
     for runs, message in [
-        (["models", "fewer"], "another seeds"),
-        (["models", "models"], "is in both"),
+        (["models", "fewer"], "was made with seeds"),
+        (["models", "models"], "already has the agents"),
         (["models", "nothing"], "does not exist"),
     ]:
         with pytest.raises(SystemExit):

@@ -684,8 +684,10 @@ def recipe_difference(values: Any, reference: Sequence[float], confidence: float
         reference`` over every cell), ``seed_means`` (per seed, list),
         ``std_seeds`` (of the seed means, ``ddof=1``), ``std_episodes`` (of
         the episode means over seeds, ``ddof=1``), ``standard_error``,
-        ``dof`` (Welch–Satterthwaite), ``ci95_low``, ``ci95_high`` (the t
-        interval at ``confidence``), ``n_seeds``, ``n_episodes``.
+        ``dof`` (Welch–Satterthwaite; ``None`` when every cell holds the same
+        difference, whose interval is then the point), ``ci95_low``,
+        ``ci95_high`` (the t interval at ``confidence``), ``n_seeds``,
+        ``n_episodes``.
 
     Raises
     ------
@@ -742,15 +744,15 @@ def recipe_difference(values: Any, reference: Sequence[float], confidence: float
     if variance > 0.0:
         dof = variance**2 / (seed_term**2 / (n_seeds - 1) + episode_term**2 / (n_episodes - 1))
         half = float(stats.t.ppf(0.5 + 0.5 * confidence, dof) * math.sqrt(variance))
-    else:  # every cell the same difference: no spread to estimate
-        dof, half = math.inf, 0.0
+    else:  # every cell the same difference: no spread to estimate, and no degrees of freedom to give
+        dof, half = None, 0.0
     return {
         "mean": mean,
         "seed_means": [float(value) for value in seed_means],
         "std_seeds": std_seeds,
         "std_episodes": std_episodes,
         "standard_error": math.sqrt(variance),
-        "dof": float(dof),
+        "dof": None if dof is None else float(dof),
         "ci95_low": mean - half,
         "ci95_high": mean + half,
         "n_seeds": int(n_seeds),

@@ -83,6 +83,11 @@ def judge_recipe(rows: Sequence[Mapping[str, Any]], members: Sequence[str], base
     return recipe_comparison(rows, members, chosen, metric)
 
 
+def dof_text(dof: float | None) -> str:
+    """Degrees of freedom to one decimal, or ``n/a`` where every cell had the same difference."""
+    return "n/a" if dof is None else f"{dof:.1f}"
+
+
 def recipe_table(result: Mapping[str, Any], digits: int = 3) -> str:
     """Markdown: each model against the reference, then the recipe against every baseline."""
     reference = result["reference"]
@@ -103,7 +108,7 @@ def recipe_table(result: Mapping[str, Any], digits: int = 3) -> str:
         interval = signed_interval(difference["ci95_low"], difference["ci95_high"], digits)
         lines.append(f"| {name}{' (best)' if name == reference else ''} | {signed(difference['mean'], digits)} "
                      f"{interval} | {difference['std_seeds']:.{digits}f} | {difference['std_episodes']:.{digits}f} | "
-                     f"{difference['dof']:.1f} | {difference['verdict']} |")  # fmt: skip
+                     f"{dof_text(difference['dof'])} | {difference['verdict']} |")  # fmt: skip
     return "\n".join(lines)
 
 
@@ -140,7 +145,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         out = Path(args.out)
         out.mkdir(parents=True, exist_ok=True)
         (out / "recipe.md").write_text(header + "\n" + table + "\n")
-        (out / "recipe.json").write_text(json.dumps({**task, "runs": [str(r) for r in args.runs], **result}, indent=2))
+        (out / "recipe.json").write_text(
+            json.dumps({**task, "runs": [str(r) for r in args.runs], **result}, indent=2, allow_nan=False) + "\n"
+        )
     return 0
 
 

@@ -51,6 +51,19 @@ def test_recipe_difference_reduces_to_a_t_interval_over_seeds_when_the_episodes_
     assert (result["ci95_low"], result["ci95_high"]) == pytest.approx((over_seeds["ci95_low"], over_seeds["ci95_high"]))
 
 
+def test_recipe_difference_without_spread_is_the_point_and_stays_valid_json() -> None:
+    # every cell the same difference: nothing to estimate a spread or degrees of freedom from
+    result = evaluate.recipe_difference(np.full((3, 5), 0.25), np.full(5, 0.30))
+    assert result["mean"] == pytest.approx(-0.05) and result["standard_error"] == 0.0 and result["dof"] is None
+    assert result["ci95_low"] == result["ci95_high"] == result["mean"]
+    json.dumps(result, allow_nan=False)  # strict JSON: no Infinity for recipe.json
+    table = recipe.recipe_table({"metric": "final_map_error", "reference": "info_gain", "confidence": 0.95,
+                                 "members": {}, "recipe": {**result, "verdict": "beats"},
+                                 "against": {"info_gain": {**result, "verdict": "beats"}},
+                                 "spread": {"low": 0.25, "high": 0.25, "mean": 0.25, "members": {}}})  # fmt: skip
+    assert "| n/a | beats |" in table
+
+
 def _coverage(seed_sd: float, episode_sd: float, noise_sd: float, seeds: int, episodes: int, trials: int,
               interval: str) -> float:  # fmt: skip
     rng = np.random.default_rng(2026)

@@ -212,6 +212,12 @@ SHIPPED_POLICIES: dict[str, ShippedPolicy] = {
         "docs/benchmark.md, 'Shipped policies'",
         chosen_for="SeifExploreLoop-v2",
     ),
+    "ppo_lstm_clustered_v2": ShippedPolicy(
+        POLICY_DIR / "ppo_lstm_clustered_v2.zip",
+        "SeifExploreLoopBudget-v2",
+        "docs/benchmark.md, 'Shipped policies'",
+        chosen_for="SeifExploreClustered-v2",
+    ),
 }
 
 #: Columns of ``leaderboard.csv`` (and keys of each row of ``leaderboard.json``).

@@ -11,6 +11,8 @@ writes
 ``NAME/vecnormalize.pkl``       the model's ``VecNormalize`` statistics, where
                                 :func:`agents.checkpoints.vecnormalize_path` finds them
 ``NAME/config.yml``             ``--config``: rl-zoo3's record of the hyperparameters that trained it
+``NAME/command.txt``            rl-zoo3's record of the command line, where it lies beside ``--config``
+                                (the steps, seed and ``--mix-env`` that ``config.yml`` does not hold)
 ``NAME/selection.json``         the model folder's ``selection.json`` if it has one
                                 (``agents.select``: what was chosen from what, on which seeds)
 ==============================  =================================================================
@@ -124,7 +126,8 @@ def ship(
     name : str
         The policy's name: lower case letters, digits and ``_``, starting with a letter.
     config : str or PathLike
-        The recipe's configuration (rl-zoo3's ``RUN/<EnvId>/config.yml``), copied as it is.
+        The recipe's configuration (rl-zoo3's ``RUN/<EnvId>/config.yml``), copied as it is, with the
+        ``command.txt`` beside it if there is one.
     policy_dir : str or PathLike
         Where shipped policies live (``agents/policies``).
     force : bool
@@ -162,6 +165,7 @@ def ship(
     # Read and transform everything before the first write, in a staging folder beside the target.
     weights = empty_optimizer_moments(model_path.read_bytes())
     selection = model_path.with_name("selection.json")
+    command = config_path.with_name("command.txt")
     staging = Path(tempfile.mkdtemp(prefix=f".{name}.", dir=policy_dir))
     try:
         (staging / name).mkdir()
@@ -169,6 +173,8 @@ def ship(
         shutil.copyfile(config_path, staging / name / "config.yml")
         if selection.is_file():
             shutil.copyfile(selection, staging / name / "selection.json")
+        if command.is_file():
+            shutil.copyfile(command, staging / name / "command.txt")
         (staging / f"{name}.zip").write_bytes(weights)
         # a replaced policy is set aside, not deleted, until both new parts are in place
         old = staging / "replaced"

@@ -33,6 +33,8 @@ def test_wheel_ships_policies_configs_and_declares_its_imports(tmp_path):
         assert f"agents/policies/{shipped.name}" in names
     for stats in (ROOT / "agents" / "policies").glob("*/vecnormalize.pkl"):  # a policy's normalisation
         assert stats.relative_to(ROOT).as_posix() in names
+    for record in (ROOT / "agents" / "policies").glob("*/command.txt"):  # the command that trained it
+        assert record.relative_to(ROOT).as_posix() in names
     for config in (ROOT / "agents" / "hyperparams").glob("*.yml"):
         assert f"agents/hyperparams/{config.name}" in names
     for module in (ROOT / "seif_gym").rglob("*.py"):

@@ -35,6 +35,7 @@ def chosen(tmp_path_factory) -> Path:
     save_with_vecnormalize(model, folder / "model.zip")
     (folder / "selection.json").write_text(json.dumps({"chosen": "run:best"}))
     (folder.parent / "config.yml").write_text("learning_rate: 0.0003\n")
+    (folder.parent / "command.txt").write_text("python -m agents.train --seed 3 --timesteps 64")
     venv.close()
     return folder / "model.zip"
 
@@ -51,7 +52,9 @@ def test_shipping_empties_the_moments_keeps_the_weights_and_the_actions(chosen, 
     assert shipped == policies / "tiny_policy.zip"
     assert sorted(p.name for p in policies.iterdir()) == ["tiny_policy", "tiny_policy.zip"]  # no staging left
     folder = policies / "tiny_policy"
-    assert sorted(p.name for p in folder.iterdir()) == ["config.yml", "selection.json", "vecnormalize.pkl"]
+    assert sorted(p.name for p in folder.iterdir()) == ["command.txt", "config.yml", "selection.json",
+                                                        "vecnormalize.pkl"]  # fmt: skip
+    assert (folder / "command.txt").read_text() == "python -m agents.train --seed 3 --timesteps 64"
     assert vecnormalize_path(shipped) == folder / "vecnormalize.pkl"
     assert (folder / "vecnormalize.pkl").read_bytes() == (chosen.parent / "vecnormalize.pkl").read_bytes()
     assert (folder / "config.yml").read_text() == "learning_rate: 0.0003\n"

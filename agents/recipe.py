@@ -83,11 +83,6 @@ def judge_recipe(rows: Sequence[Mapping[str, Any]], members: Sequence[str], base
     return recipe_comparison(rows, members, chosen, metric)
 
 
-def dof_text(dof: float | None) -> str:
-    """Degrees of freedom to one decimal, or ``n/a`` where every cell had the same difference."""
-    return "n/a" if dof is None else f"{dof:.1f}"
-
-
 def recipe_table(result: Mapping[str, Any], digits: int = 3) -> str:
     """Markdown: each model against the reference, then the recipe against every baseline."""
     reference = result["reference"]
@@ -106,9 +101,10 @@ def recipe_table(result: Mapping[str, Any], digits: int = 3) -> str:
               "95% | sd of seed means | sd of episode means | dof | verdict |", "|---|--:|--:|--:|--:|---|"]  # fmt: skip
     for name, difference in result["against"].items():
         interval = signed_interval(difference["ci95_low"], difference["ci95_high"], digits)
+        dof = "n/a" if difference["dof"] is None else f"{difference['dof']:.1f}"  # None: every cell the same
         lines.append(f"| {name}{' (best)' if name == reference else ''} | {signed(difference['mean'], digits)} "
                      f"{interval} | {difference['std_seeds']:.{digits}f} | {difference['std_episodes']:.{digits}f} | "
-                     f"{dof_text(difference['dof'])} | {difference['verdict']} |")  # fmt: skip
+                     f"{dof} | {difference['verdict']} |")  # fmt: skip
     return "\n".join(lines)
 
 

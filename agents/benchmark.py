@@ -218,6 +218,9 @@ SHIPPED_POLICIES: dict[str, ShippedPolicy] = {
         "docs/benchmark.md, 'Shipped policies'",
         chosen_for="SeifExploreClustered-v2",
     ),
+    "ppo_lstm_seif_explore_v2": ShippedPolicy(
+        POLICY_DIR / "ppo_lstm_seif_explore_v2.zip", "SeifExplore-v2", "docs/benchmark.md, 'Shipped policies'"
+    ),
 }
 
 #: Columns of ``leaderboard.csv`` (and keys of each row of ``leaderboard.json``).

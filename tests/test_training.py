@@ -81,6 +81,7 @@ def _same_weights(a: dict[str, torch.Tensor], b: dict[str, torch.Tensor]) -> boo
         ("ppo_lstm", "SeifExploreLoopBudget-v2", POLICIES / "ppo_lstm_clustered_budget_v2.zip"),
         ("ppo_lstm", "SeifExploreLoopBudget-v2", POLICIES / "ppo_lstm_loop_v2.zip"),
         ("ppo_lstm", "SeifExploreLoopBudget-v2", POLICIES / "ppo_lstm_clustered_v2.zip"),
+        ("ppo_lstm", "SeifExplore-v2", POLICIES / "ppo_lstm_seif_explore_v2.zip"),
     ],
 )
 def test_config_entry_is_the_shipped_policys_recipe(algo, env_id, path):

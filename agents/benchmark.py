@@ -52,10 +52,10 @@ import gymnasium as gym
 import seif_gym
 from agents import BASELINES
 from agents.evaluate import evaluate_agents, sb3_algorithm, write_outputs
+from agents.memories import policy_view
 from agents.parallel import Executor
 from agents.parallel import add_arguments as add_executor_arguments
 from agents.parallel import from_arguments as executor_from_arguments
-from agents.time_feature import TimeLeftObservation, uses_time_left
 
 __all__ = [
     "DECLARED_HELD_OUT_EPISODES",
@@ -273,10 +273,8 @@ def policy_fits(policy: ShippedPolicy, env_id: str) -> bool:
     model = sb3_algorithm(policy.path).load(policy.path, device="cpu")
     env = gym.make(env_id)
     try:
-        # a policy with the budget's clock adds that entry itself (agents.time_feature)
-        space = env.observation_space
-        if uses_time_left(model.observation_space) and isinstance(space, gym.spaces.Dict):
-            space = TimeLeftObservation(env).observation_space
+        # a policy with entries of its own (the budget's clock, the coverage memory) adds them itself
+        space = policy_view(env, model.observation_space).observation_space
         return model.observation_space == space and model.action_space == env.action_space
     finally:
         env.close()

@@ -40,7 +40,7 @@ from stable_baselines3.common.callbacks import BaseCallback
 
 from agents.benchmark import VALIDATION_SEED
 from agents.checkpoints import save_with_vecnormalize
-from agents.time_feature import TimeLeftClock, episode_limit, uses_time_left
+from agents.memories import policy_memories
 
 __all__ = ["EVAL_COLUMNS", "MapErrorEvalCallback", "TaskMetricsCallback", "run_folder"]
 
@@ -164,18 +164,18 @@ class _NormalizedPolicy:
         self.model = model
         self.deterministic = deterministic
         self.vec_normalize = model.get_vec_normalize_env()
-        # a policy trained with the budget's clock (agents.time_feature) counts its own steps on the plain env
-        self.clock = TimeLeftClock(episode_limit(env)) if uses_time_left(model.observation_space) else None
+        # a policy trained with entries of its own (agents.memories) computes them itself on the plain env
+        self.memories = policy_memories(model.observation_space, env)
 
     def reset(self) -> None:
-        if self.clock is not None:
-            self.clock.reset()
+        if self.memories is not None:
+            self.memories.reset()
 
     def predict(
         self, observation: Any, state: Any = None, episode_start: Any = None, deterministic: bool = True
     ) -> tuple[np.ndarray, Any]:
-        if self.clock is not None:
-            observation = self.clock.observe(observation, episode_start)
+        if self.memories is not None:
+            observation = self.memories.observe(observation, episode_start)
         if self.vec_normalize is not None:
             # the training statistics as they are now (normalize_obs neither updates nor needs a batch)
             observation = self.vec_normalize.normalize_obs(observation)

@@ -114,10 +114,10 @@ from scipy import stats
 import seif_gym  # noqa: F401  (registers the environments)
 from agents.baselines import BASELINES, Agent, baseline_class, make_agent
 from agents.cli import json_object
+from agents.memories import PolicyMemories, has_policy_entries, policy_memories, policy_view
 from agents.parallel import Executor, chunks
 from agents.parallel import add_arguments as add_executor_arguments
 from agents.parallel import from_arguments as executor_from_arguments
-from agents.time_feature import TimeLeftClock, TimeLeftObservation, episode_limit, uses_time_left
 from seif_gym import LATEST_ID
 from seif_gym.progress import Progress
 
@@ -296,20 +296,21 @@ class SB3Agent(Agent):
         from agents.checkpoints import vecnormalize_path
 
         factory: Callable[[], Any] = env_factory if env_factory is not None else (lambda: env)
-        # a policy trained with the budget's clock in its observation counts its own steps
-        self.clock: TimeLeftClock | None = None
-        if uses_time_left(self.model.observation_space):
+        # a policy trained with entries of its own (the budget's clock, the coverage memory) computes them itself
+        space = self.model.observation_space
+        self.memories: PolicyMemories | None = None
+        if has_policy_entries(space):
             if env is not None:
-                self.clock = TimeLeftClock(episode_limit(env))
+                self.memories = policy_memories(space, env)
             else:
                 probe = factory()
                 try:
-                    self.clock = TimeLeftClock(episode_limit(probe))
+                    self.memories = policy_memories(space, probe)
                 finally:
                     if probe is not None:
                         probe.close()
             plain_factory = factory
-            factory = lambda: TimeLeftObservation(plain_factory())  # noqa: E731  (the spaces VecNormalize checks)
+            factory = lambda: policy_view(plain_factory(), space)  # noqa: E731  (the spaces VecNormalize checks)
         # the statistics saved with this very model (a checkpoint's own, never a later moment's)
         stats_path = vecnormalize_path(self.path)
         if stats_path is not None:
@@ -326,8 +327,10 @@ class SB3Agent(Agent):
         episode_start: Any = None,
         deterministic: bool = False,
     ) -> tuple[np.ndarray, Any]:
-        """The model's ``predict`` after the budget's clock and the saved observation normalisation (if any)."""
-        model_input: Any = dict(observation) if self.clock is None else self.clock.observe(observation, episode_start)
+        """The model's ``predict`` after its own entries and the saved observation normalisation (if any)."""
+        model_input: Any = (
+            dict(observation) if self.memories is None else self.memories.observe(observation, episode_start)
+        )
         if self.vecnormalize is not None:
             model_input = self.vecnormalize.normalize_obs(model_input)
         action, state = self.model.predict(
@@ -340,10 +343,10 @@ class SB3Agent(Agent):
         return self.predict(observation, deterministic=True)[0]
 
     def reset(self, index: int | None = None) -> None:
-        """Env ``index`` (every env when ``None``) starts a new episode; the budget's clock restarts with it."""
+        """Env ``index`` (every env when ``None``) starts a new episode; the policy's own entries restart with it."""
         super().reset(index)
-        if self.clock is not None:
-            self.clock.reset(index)
+        if self.memories is not None:
+            self.memories.reset(index)
 
     def __repr__(self) -> str:
         return f"SB3Agent({str(self.path)!r}, vecnormalize={self.vecnormalize is not None})"

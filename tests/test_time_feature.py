@@ -113,7 +113,9 @@ def test_a_policy_with_the_clock_runs_on_the_plain_env(tmp_path):
 
     env = gym.make("SeifExploreBudget-v2", max_episode_steps=limit)
     agent = SB3Agent(path, env=env)
-    assert agent.clock is not None and agent.clock.limit == limit
+    assert agent.memories is not None
+    (clock,) = agent.memories.memories
+    assert isinstance(clock, TimeLeftClock) and clock.limit == limit
     seen: list[float] = []
     predict = agent.model.predict
 

@@ -36,6 +36,7 @@ import gymnasium as gym
 import numpy as np
 
 from agents.baselines import Geometry
+from agents.entries import with_entry
 
 __all__ = ["UNSWEPT", "CoverageMemory", "CoverageMemoryObservation", "uses_coverage_memory"]
 
@@ -157,18 +158,13 @@ class CoverageMemoryObservation(gym.Wrapper, gym.utils.RecordConstructorArgs):
     """
 
     def __init__(self, env: gym.Env) -> None:
-        space = env.observation_space
-        if not isinstance(space, gym.spaces.Dict):
-            raise TypeError(f"env: the observation space must be a Dict, got {type(space).__name__}")
-        if UNSWEPT in space.spaces:
-            raise ValueError(f"env: the observation already has {UNSWEPT!r}")
         memory = CoverageMemory(Geometry.from_env(env))
+        entry = gym.spaces.Box(0.0, 1.0, shape=(memory.size,), dtype=np.float32)
+        space = with_entry(env.observation_space, UNSWEPT, entry)
         gym.utils.RecordConstructorArgs.__init__(self)
         gym.Wrapper.__init__(self, env)
         self.memory = memory
-        self.observation_space = gym.spaces.Dict(
-            {**space.spaces, UNSWEPT: gym.spaces.Box(0.0, 1.0, shape=(memory.size,), dtype=np.float32)}
-        )
+        self.observation_space = space
 
     def reset(self, **kwargs: Any):
         observation, info = self.env.reset(**kwargs)

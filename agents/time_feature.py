@@ -39,6 +39,8 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
+from agents.entries import with_entry
+
 __all__ = ["TIME_LEFT", "TimeLeftClock", "TimeLeftObservation", "episode_limit", "uses_time_left"]
 
 #: The observation key of the time left: ``(limit - steps taken) / limit``, in [0, 1], shape ``(1,)``.
@@ -86,17 +88,11 @@ class TimeLeftObservation(gym.Wrapper, gym.utils.RecordConstructorArgs):
     """
 
     def __init__(self, env: gym.Env) -> None:
-        space = env.observation_space
-        if not isinstance(space, gym.spaces.Dict):
-            raise TypeError(f"env: the observation space must be a Dict, got {type(space).__name__}")
-        if TIME_LEFT in space.spaces:
-            raise ValueError(f"env: the observation already has {TIME_LEFT!r}")
+        space = with_entry(env.observation_space, TIME_LEFT, gym.spaces.Box(0.0, 1.0, shape=(1,), dtype=np.float32))
         self.limit = episode_limit(env)
         gym.utils.RecordConstructorArgs.__init__(self)
         gym.Wrapper.__init__(self, env)
-        self.observation_space = gym.spaces.Dict(
-            {**space.spaces, TIME_LEFT: gym.spaces.Box(0.0, 1.0, shape=(1,), dtype=np.float32)}
-        )
+        self.observation_space = space
         self._steps = 0
 
     def _observe(self, observation: Mapping[str, np.ndarray]) -> dict[str, np.ndarray]:

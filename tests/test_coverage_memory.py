@@ -8,8 +8,10 @@ import math
 import gymnasium as gym
 import numpy as np
 import pytest
+from policy_entry_checks import assert_acts_as_trained  # tests/ is on sys.path under pytest
 
 import agents.coverage_memory
+import agents.entries
 import agents.memories
 import seif_gym  # noqa: F401  (registers the envs)
 from agents.baselines import Geometry
@@ -20,7 +22,7 @@ from agents.networks import BeliefPolicy
 from agents.time_feature import TIME_LEFT, TimeLeftClock, TimeLeftObservation
 
 
-@pytest.mark.parametrize("module", [agents.coverage_memory, agents.memories])
+@pytest.mark.parametrize("module", [agents.coverage_memory, agents.entries, agents.memories])
 def test_module_doctests_pass(module):
     results = doctest.testmod(module)
     assert results.attempted > 0 and results.failed == 0
@@ -193,13 +195,5 @@ def test_a_policy_with_the_memory_runs_on_the_plain_env(tmp_path):
     predict = agent.model.predict
     row, _ = run_episode(agent, env, 0)
     assert row["length"] == limit
-    # the same actions as the model given the wrapper's observations, across a new episode
-    for seed in (2, 3):
-        observation, _ = training_env.reset(seed=seed)
-        plain_observation, _ = env.reset(seed=seed)
-        for step in range(limit):
-            expected, _ = predict(observation, deterministic=True)
-            action, _ = agent.predict(plain_observation, episode_start=np.array([step == 0]), deterministic=True)
-            np.testing.assert_array_equal(action, expected)
-            observation, *_ = training_env.step(action)
-            plain_observation, *_ = env.step(action)
+    # the same actions as the model given the wrapper's observations, episode after episode
+    assert_acts_as_trained(agent, predict, training_env, env, seeds=(2, 3), steps=limit)

@@ -7,6 +7,7 @@ import doctest
 import gymnasium as gym
 import numpy as np
 import pytest
+from policy_entry_checks import assert_acts_as_trained  # tests/ is on sys.path under pytest
 
 import agents.time_feature
 import seif_gym  # noqa: F401  (registers the envs)
@@ -130,15 +131,7 @@ def test_a_policy_with_the_clock_runs_on_the_plain_env(tmp_path):
         assert row["length"] == limit
         np.testing.assert_allclose(seen, [(limit - step) / limit for step in range(limit)])
     # same actions as the model given the wrapper's observations
-    observation, _ = training_env.reset(seed=2)
-    plain_observation, _ = env.reset(seed=2)
-    agent.reset()
-    for step in range(limit):
-        expected, _ = predict(observation, deterministic=True)
-        action, _ = agent.predict(plain_observation, episode_start=np.array([step == 0]), deterministic=True)
-        np.testing.assert_array_equal(action, expected)
-        observation, *_ = training_env.step(action)
-        plain_observation, *_ = env.step(action)
+    assert_acts_as_trained(agent, predict, training_env, env, seeds=(2,), steps=limit)
 
 
 def test_the_benchmark_takes_a_policy_with_the_clock(tmp_path):

@@ -29,6 +29,8 @@ from __future__ import annotations
 import multiprocessing
 import os
 import socket
+import threading
+import time
 from collections.abc import Callable, Sequence
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from typing import Any
@@ -39,17 +41,29 @@ __all__ = ["Executor", "add_arguments", "from_arguments", "chunks"]
 Task = tuple[Any, ...]
 
 
-def _one_thread_each() -> None:
-    """Initializer of the local workers: one BLAS / OpenMP / torch thread each, as Ray gives its tasks.
+def _exit_with_parent(parent: int, period: float = 0.5) -> None:
+    """End this worker once ``parent`` (the process that started it) is gone."""
+    while os.getppid() == parent:
+        time.sleep(period)
+    os._exit(1)
+
+
+def _worker_setup(parent: int) -> None:
+    """Initializer of the local workers: one BLAS / OpenMP / torch thread each, and no life after the parent.
 
     N workers on N cores each running a multi-threaded BLAS would fight over
-    the cores; a task's results do not depend on the thread count.
+    the cores; a task's results do not depend on the thread count (as Ray
+    gives its tasks one thread). A worker runs a task to its end, and a task
+    can be a whole variant of the leaderboard: killed while one runs, the
+    parent would leave its workers computing for nobody, so a watcher thread
+    ends the worker when its parent process is gone.
     """
     for variable in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
         os.environ[variable] = "1"  # read by torch (and any BLAS) loaded from here on
     from seif_gym.threads import limit_blas_threads
 
     limit_blas_threads(1)  # the BLAS already loaded with numpy
+    threading.Thread(target=_exit_with_parent, args=(parent,), name="exit-with-parent", daemon=True).start()
 
 
 def _local_node() -> str:
@@ -180,7 +194,7 @@ class Executor:
         outcomes: list[Any] = [None] * len(tasks)
         context = multiprocessing.get_context("spawn")
         with ProcessPoolExecutor(
-            min(self.workers, len(tasks)), mp_context=context, initializer=_one_thread_each
+            min(self.workers, len(tasks)), mp_context=context, initializer=_worker_setup, initargs=(os.getpid(),)
         ) as pool:
             futures: dict[Future[tuple[str, Any]], int] = {
                 pool.submit(_call, function, task): index for index, task in enumerate(tasks)

@@ -10,6 +10,7 @@ import os
 import re
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -106,3 +107,58 @@ def test_evaluate_command_runs_on_workers(tmp_path):
     assert re.search(r"processes: 2 tasks on [12] processes or nodes", done.stdout), done.stdout
     bad = subprocess.run([*command, "--workers", "0"], capture_output=True, text=True, timeout=300)
     assert bad.returncode == 2 and "workers must be a positive int" in bad.stderr
+
+
+def _gone(pid: int) -> bool:
+    """Whether process ``pid`` has ended (exited, or a zombie no one reaped)."""
+    if Path("/proc/self/stat").exists():
+        try:
+            return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] == "Z"
+        except FileNotFoundError:
+            return True
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return True
+    return False
+
+
+def test_a_worker_ends_when_its_parent_is_killed(tmp_path):
+    """A parent killed while its workers run long tasks leaves no worker computing for nobody."""
+    import signal
+    import time
+
+    pid_file = tmp_path / "worker.pid"
+    script = tmp_path / "parent.py"
+    script.write_text(
+        "import os, sys, time\n"
+        "from agents.parallel import Executor\n"
+        "def task(path):\n"
+        "    open(path, 'w').write(str(os.getpid()))\n"
+        "    time.sleep(120)\n"
+        "if __name__ == '__main__':\n"
+        "    Executor(workers=2).map(task, [(sys.argv[1],), (sys.argv[1] + '.2',)])\n"
+    )
+    parent = subprocess.Popen([sys.executable, str(script), str(pid_file)], cwd=str(Path(__file__).parents[1]))
+    try:
+        deadline = time.monotonic() + 60
+        while not pid_file.exists() or not pid_file.read_text():
+            assert time.monotonic() < deadline, "the worker never started its task"
+            assert parent.poll() is None, "the parent ended before its worker started"
+            time.sleep(0.1)
+        worker = int(pid_file.read_text())
+        assert not _gone(worker)
+        parent.send_signal(signal.SIGKILL)
+        parent.wait(timeout=10)
+        deadline = time.monotonic() + 10
+        while not _gone(worker):
+            assert time.monotonic() < deadline, f"worker {worker} still runs 10 s after its parent was killed"
+            time.sleep(0.1)
+    finally:
+        if parent.poll() is None:
+            parent.kill()
+            parent.wait()
+        # a failed check leaves nothing running: the workers' own pids, where they were written
+        for written in (pid_file, tmp_path / "worker.pid.2"):
+            if written.exists() and written.read_text() and not _gone(int(written.read_text())):
+                os.kill(int(written.read_text()), signal.SIGKILL)

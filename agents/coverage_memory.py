@@ -37,6 +37,7 @@ import numpy as np
 
 from agents.baselines import Geometry
 from agents.entries import with_entry
+from seif_gym.envs.explore import _check_positive  # the env's own check of its geometry numbers
 
 __all__ = ["UNSWEPT", "CoverageMemory", "CoverageMemoryObservation", "uses_coverage_memory"]
 
@@ -47,14 +48,6 @@ UNSWEPT = "unswept_sectors"
 def uses_coverage_memory(observation_space: Any) -> bool:
     """Whether ``observation_space`` (a policy's) holds the :data:`UNSWEPT` entry."""
     return isinstance(observation_space, gym.spaces.Dict) and UNSWEPT in observation_space.spaces
-
-
-def _positive(name: str, value: Any) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
-        raise TypeError(f"{name} must be a number, got {type(value).__name__}")
-    if not math.isfinite(float(value)) or float(value) <= 0.0:
-        raise ValueError(f"{name} must be positive and finite, got {value!r}")
-    return float(value)
 
 
 class CoverageMemory:
@@ -85,11 +78,13 @@ class CoverageMemory:
     def __init__(self, geometry: Geometry, *, cell: float = 2.0, sectors: int = 8, near: float | None = None) -> None:
         if not isinstance(geometry, Geometry):
             raise TypeError(f"geometry must be a Geometry, got {type(geometry).__name__}")
-        cell = _positive("cell", cell)
+        _check_positive("cell", cell)
         if isinstance(sectors, bool) or not isinstance(sectors, (int, np.integer)) or sectors < 1:
             raise ValueError(f"sectors must be a positive integer, got {sectors!r}")
-        self.near = 2.0 * geometry.sensor_range if near is None else _positive("near", near)
-        self.geometry, self.cell, self.sectors = geometry, cell, int(sectors)
+        if near is not None:
+            _check_positive("near", near)
+        self.near = 2.0 * geometry.sensor_range if near is None else float(near)
+        self.geometry, self.cell, self.sectors = geometry, float(cell), int(sectors)
         n = max(1, math.ceil(geometry.arena_size / cell))
         centres = (np.arange(n) + 0.5) * (geometry.arena_size / n) - geometry.half
         gx, gy = np.meshgrid(centres, centres, indexing="ij")

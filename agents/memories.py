@@ -25,7 +25,7 @@ True
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from typing import Any, Protocol
 
 import gymnasium as gym
@@ -71,9 +71,17 @@ class PolicyMemories:
         return result
 
 
+#: Each policy-side entry: whether a policy's space holds it, the agent's side built from an env of
+#: the task, and the training wrapper that adds it.
+_ENTRIES: tuple[tuple[Callable[[Any], bool], Callable[[Any], _Memory], Callable[[gym.Env], gym.Env]], ...] = (
+    (uses_time_left, lambda env: TimeLeftClock(episode_limit(env)), TimeLeftObservation),
+    (uses_coverage_memory, lambda env: CoverageMemory(Geometry.from_env(env)), CoverageMemoryObservation),
+)
+
+
 def has_policy_entries(observation_space: Any) -> bool:
     """Whether ``observation_space`` (a policy's) holds an entry the agent computes itself."""
-    return uses_time_left(observation_space) or uses_coverage_memory(observation_space)
+    return any(holds(observation_space) for holds, _, _ in _ENTRIES)
 
 
 def policy_memories(observation_space: Any, env: Any) -> PolicyMemories | None:
@@ -86,18 +94,13 @@ def policy_memories(observation_space: Any, env: Any) -> PolicyMemories | None:
     env : gymnasium.Env
         An env of the task (its time limit and geometry are read, never its world).
     """
-    memories: list[_Memory] = []
-    if uses_time_left(observation_space):
-        memories.append(TimeLeftClock(episode_limit(env)))
-    if uses_coverage_memory(observation_space):
-        memories.append(CoverageMemory(Geometry.from_env(env)))
+    memories = [build(env) for holds, build, _ in _ENTRIES if holds(observation_space)]
     return PolicyMemories(memories) if memories else None
 
 
 def policy_view(env: gym.Env, observation_space: Any) -> gym.Env:
     """``env`` wrapped with the training wrappers of the entries ``observation_space`` (a policy's) holds."""
-    if uses_time_left(observation_space) and isinstance(env.observation_space, gym.spaces.Dict):
-        env = TimeLeftObservation(env)
-    if uses_coverage_memory(observation_space) and isinstance(env.observation_space, gym.spaces.Dict):
-        env = CoverageMemoryObservation(env)
+    for holds, _, wrapper in _ENTRIES:
+        if holds(observation_space) and isinstance(env.observation_space, gym.spaces.Dict):
+            env = wrapper(env)
     return env

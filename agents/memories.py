@@ -45,7 +45,7 @@ class _Memory(Protocol):
 
 
 class PolicyMemories:
-    """The policy-side entries of one policy, computed in training's order.
+    """The policy-side entries of one policy (each entry's value does not depend on the order).
 
     Parameters
     ----------
@@ -72,10 +72,11 @@ class PolicyMemories:
 
 
 #: Each policy-side entry: whether a policy's space holds it, the agent's side built from an env of
-#: the task, and the training wrapper that adds it.
+#: the task, and the training wrapper that adds it. The memory checks everything the clock checks
+#: (and the pose) before it changes, so with it first a refused observation changes neither.
 _ENTRIES: tuple[tuple[Callable[[Any], bool], Callable[[Any], _Memory], Callable[[gym.Env], gym.Env]], ...] = (
-    (uses_time_left, lambda env: TimeLeftClock(episode_limit(env)), TimeLeftObservation),
     (uses_coverage_memory, lambda env: CoverageMemory(Geometry.from_env(env)), CoverageMemoryObservation),
+    (uses_time_left, lambda env: TimeLeftClock(episode_limit(env)), TimeLeftObservation),
 )
 
 

@@ -165,7 +165,7 @@ def test_policy_memories_follow_the_policys_space():
     both = CoverageMemoryObservation(TimeLeftObservation(gym.make("SeifExploreLarge-v2")))
     memories = policy_memories(both.observation_space, env)
     assert isinstance(memories, PolicyMemories) and has_policy_entries(both.observation_space)
-    assert [type(memory) for memory in memories.memories] == [TimeLeftClock, CoverageMemory]
+    assert [type(memory) for memory in memories.memories] == [CoverageMemory, TimeLeftClock]
     assert policy_view(gym.make("SeifExploreLarge-v2"), both.observation_space).observation_space == (
         both.observation_space
     )
@@ -197,3 +197,18 @@ def test_a_policy_with_the_memory_runs_on_the_plain_env(tmp_path):
     assert row["length"] == limit
     # the same actions as the model given the wrapper's observations, episode after episode
     assert_acts_as_trained(agent, predict, training_env, env, seeds=(2, 3), steps=limit)
+
+
+def test_a_refused_observation_changes_no_entry():
+    both = CoverageMemoryObservation(TimeLeftObservation(gym.make("SeifExploreLarge-v2")))
+    env = gym.make("SeifExploreLarge-v2")
+    memories = policy_memories(both.observation_space, env)
+    assert memories is not None
+    observation, _ = env.reset(seed=0)
+    first = memories.observe(observation, episode_start=True)
+    with pytest.raises(ValueError, match="pose"):
+        memories.observe({**observation, "pose": observation["pose"][:3]})
+    # the clock did not count the refused step, the memory did not sweep from it
+    second = memories.observe(observation)
+    assert second[TIME_LEFT][0] == pytest.approx(first[TIME_LEFT][0] - 1 / 1000)
+    np.testing.assert_array_equal(second[UNSWEPT], first[UNSWEPT])

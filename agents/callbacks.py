@@ -313,13 +313,13 @@ class MapErrorEvalCallback(BaseCallback):
 
     def evaluate(self) -> dict[str, float | int]:
         """Run the validation episodes now; log, write and keep the best. Returns the row written."""
-        from agents.evaluate import run_episode  # the evaluation's own episode loop and metrics
+        from agents.evaluate import make_evaluation_env, run_episode  # the evaluation's own env, loop and metrics
 
         self.num_timesteps = int(self.model.num_timesteps)  # also when called outside a step
         if self._env is None:
             if self.env_id is None:
                 raise ValueError("MapErrorEvalCallback: env_id is not known before training starts")
-            self._env = gym.make(self.env_id, **(self.env_kwargs or {}))
+            self._env = make_evaluation_env(self.env_id, self.env_kwargs or {})
         policy = _NormalizedPolicy(self.model, self.deterministic, self._env)
         # run_episode asks only for predict (and reset, if there is one) of its agent
         rows = [run_episode(policy, self._env, seed)[0] for seed in self.seeds]  # type: ignore[arg-type]

@@ -656,3 +656,21 @@ def test_showcase_gif_runs_a_recurrent_policy_with_its_memory(tmp_path, monkeypa
     assert gif.stat().st_size > 0
     assert len(actions) == len(evaluated) == gym.spec(policy.task).max_episode_steps
     assert all(np.array_equal(a, b) for a, b in zip(actions, evaluated, strict=True))
+
+
+def test_evaluation_env_leaves_out_only_the_exact_nees():
+    """The evaluation's env (exact_pose_nees off) gives every metric of run_episode bit for bit as the plain env."""
+    from agents.evaluate import make_evaluation_env, run_episode
+
+    kwargs = {"num_landmarks": 80, "sensor_range": 12.0, "fov": 2 * np.pi, "max_episode_steps": 80}
+    cheap, plain = make_evaluation_env("SeifExplore-v2", kwargs), gym.make("SeifExplore-v2", **kwargs)
+    assert cheap.unwrapped.exact_pose_nees is False and plain.unwrapped.exact_pose_nees is True
+    row_cheap, trace_cheap = run_episode(make_agent("frontier", cheap), cheap, 4)
+    row_plain, trace_plain = run_episode(make_agent("frontier", plain), plain, 4)
+    row_cheap.pop("decision_time_ms"), row_plain.pop("decision_time_ms")  # wall-clock time
+    assert row_cheap == row_plain and trace_cheap == trace_plain
+    assert row_plain["landmarks_mapped"] > 60  # past the dense factorisation: the sparse one left out too
+    asked = make_evaluation_env("SeifExplore-v2", {"exact_pose_nees": True})
+    assert asked.unwrapped.exact_pose_nees is True  # env_kwargs still decide
+    for env in (cheap, plain, asked):
+        env.close()

@@ -922,6 +922,36 @@ def test_step_time_is_zero_unless_measured():
         make(measure_time=1)
 
 
+def test_exact_pose_nees_off_changes_nothing_but_the_nees():
+    """``exact_pose_nees=False``: every observation, reward, end and info as before, ``pose_nees`` NaN.
+
+    80 landmarks seen all round to 12 m take the map past the dense threshold (60), so both ways of
+    factorising the exact marginal are left out somewhere in the episode.
+    """
+    kwargs = {"num_landmarks": 80, "sensor_range": 12.0, "fov": 2 * math.pi, "max_episode_steps": 120}
+    exact, cheap = make(**kwargs), make(exact_pose_nees=False, **kwargs)
+    assert cheap.unwrapped.config["exact_pose_nees"] is False
+    obs_a, info_a = exact.reset(seed=6)
+    obs_b, info_b = cheap.reset(seed=6)
+    assert_same(obs_a, obs_b)
+    assert_same(info_a, info_b, skip=("step_time", "pose_nees"))
+    mapped = 0
+    for action in fixed_actions(120, seed=6):
+        *out_a, info_a = exact.step(action)
+        *out_b, info_b = cheap.step(action)
+        assert_same(tuple(out_a), tuple(out_b))
+        assert_same(info_a, info_b, skip=("step_time", "pose_nees"))
+        assert math.isfinite(info_a["pose_nees"]) and math.isnan(info_b["pose_nees"])
+        mapped = info_a["landmarks_mapped"]
+        if out_a[1] or out_a[2]:
+            break
+    assert mapped > 60, mapped  # the sparse factorisation's side was reached
+    exact.close()
+    cheap.close()
+    with pytest.raises(TypeError, match="exact_pose_nees"):
+        make(exact_pose_nees="no")
+
+
 def test_config_round_trips_through_make():
     kwargs = {"layout": "loop", "num_landmarks": 17, "filter": "ekf", "fov": 2.0, "d_cap": 1.5, "map_size": 24}
     env = make(**kwargs)

@@ -260,6 +260,38 @@ def test_large_maps_take_the_sparse_pose_marginal_like_the_single_env(monkeypatc
     assert sparse_steps > 10  # the sparse path was taken
 
 
+def test_exact_pose_nees_off_vectorises_like_the_single_env():
+    """``exact_pose_nees=False`` in the compiled backend: NaN NEES on small and large maps, all else as before.
+
+    Equal to a SyncVectorEnv of single envs with the same argument, and, but for the NEES, to the
+    native env that computes it; 80 landmarks seen all round to 12 m pass the dense threshold (60).
+    """
+    kwargs = {"num_landmarks": 80, "sensor_range": 12.0, "fov": 2 * np.pi}
+    cheap = SeifExploreVectorEnv(2, max_episode_steps=40, exact_pose_nees=False, **kwargs)
+    exact = SeifExploreVectorEnv(2, max_episode_steps=40, **kwargs)
+    reference = SyncVectorEnv(
+        [lambda: gym.make(LATEST_ID, max_episode_steps=40, exact_pose_nees=False, **kwargs) for _ in range(2)]
+    )
+    assert cheap.backend == "compiled"
+    for env in (cheap, exact, reference):
+        env.reset(seed=3)
+    rng = np.random.default_rng(3)
+    large = 0
+    for t in range(30):
+        actions = rng.uniform(-1, 1, size=(2, 2))
+        got, with_nees, expected = cheap.step(actions), exact.step(actions), reference.step(actions)
+        for k in range(5):
+            _assert_equal(got[k], expected[k], f"step {t} [{k}]")
+        assert np.isnan(got[4]["pose_nees"]).all() and np.isfinite(with_nees[4]["pose_nees"]).all()
+        got[4]["pose_nees"] = with_nees[4]["pose_nees"]
+        for k in range(5):
+            _assert_equal(got[k], with_nees[k], f"step {t} [{k}] (exact NEES)")
+        large += int((got[4]["landmarks_mapped"] > 60).sum())
+    assert large > 10  # the sparse factorisation's side was reached
+    for env in (cheap, exact, reference):
+        env.close()
+
+
 def test_bench_vector_stages_split_the_native_step():
     """``benchmarks/bench_vector.py --stages``: every compiled call of the step is timed, and only once."""
     import importlib.util

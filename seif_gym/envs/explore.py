@@ -315,7 +315,7 @@ class SeifExploreEnv(gym.Env):
     | `pose_estimate` | (3,) float | the filter's pose estimate |
     | `pose_error` | float | distance between true and estimated position, m |
     | `map_error` | float | `E_t` of Rewards |
-    | `pose_nees` | float | NEES of the pose against the filter's own `pose_covariance` (the exact marginal of its belief; for the SEIF a factorisation of Ω, so it costs more than the rest of the filter step on large maps) |
+    | `pose_nees` | float | NEES of the pose against the filter's own `pose_covariance` (the exact marginal of its belief; for the SEIF a factorisation of Ω, so it costs more than the rest of the filter step on large maps); NaN with `exact_pose_nees=False` |
     | `pose_nees_blanket` | float | NEES against the covariance the observation shows (`local_marginals`: for the SEIF the Markov-blanket covariance, tighter than the marginal; the same as `pose_nees` for the exact filters) |
     | `landmarks_mapped`, `landmarks_total` | int | landmarks in the filter's map, and in the world |
     | `active_landmarks` | tuple of int | ids of the landmarks linked to the robot (all mapped ones for the exact filters) |
@@ -365,6 +365,7 @@ class SeifExploreEnv(gym.Env):
     | `nearest_landmarks`, `map_size`, `map_extent`, `std_scale` | 8, 40, 8.0, 1.0 | observation shape (`ObservationConfig`) |
     | `coverage_resolution` | 0.5 | cell size of the swept-area grid, metres |
     | `measure_time` | `False` | fill `info["step_time"]` with the wall-clock seconds spent in the filter (otherwise 0.0: wall-clock time would make seeded episodes irreproducible) |
+    | `exact_pose_nees` | `True` | fill `info["pose_nees"]` (otherwise NaN, and nothing else changes): the exact pose marginal factorises Ω every step, which on maps of more than 60 landmarks costs more than the rest of the step; evaluation, selection and validation, which never read it, turn it off |
     | `render_mode` | `None` | `"rgb_array"` or `"human"` |
 
     ## Version History
@@ -435,6 +436,7 @@ class SeifExploreEnv(gym.Env):
         std_scale: float = 1.0,
         coverage_resolution: float = 0.5,
         measure_time: bool = False,
+        exact_pose_nees: bool = True,
         render_mode: str | None = None,
     ) -> None:
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
@@ -477,6 +479,9 @@ class SeifExploreEnv(gym.Env):
             raise TypeError(f"measure_time must be a bool, got {type(measure_time).__name__}")
         self.measure_time = measure_time
         self._clock = time.perf_counter if measure_time else _no_clock
+        if not isinstance(exact_pose_nees, bool):
+            raise TypeError(f"exact_pose_nees must be a bool, got {type(exact_pose_nees).__name__}")
+        self.exact_pose_nees = exact_pose_nees
         self.render_mode = render_mode
         self._renderer: Renderer | None = None
         self.world: World | None = None
@@ -504,6 +509,7 @@ class SeifExploreEnv(gym.Env):
         ):  # fmt: skip
             merged.update(asdict(part))
         merged["measure_time"] = self.measure_time
+        merged["exact_pose_nees"] = self.exact_pose_nees
         # only what the constructor takes, so that gym.make(env_id, **env.config) rebuilds the env
         return {key: value for key, value in merged.items() if key in _CONSTRUCTOR_ARGUMENTS}
 
@@ -652,7 +658,7 @@ class SeifExploreEnv(gym.Env):
         error = world.pose - estimate
         error[2] = wrap_angle(float(error[2]))
         # the filter's own (exact marginal) pose covariance; and the constant-time one the observation shows
-        nees = float(_nees(error, np.ascontiguousarray(filt.pose_covariance)))
+        nees = float(_nees(error, np.ascontiguousarray(filt.pose_covariance))) if self.exact_pose_nees else math.nan
         nees_blanket = float(_nees(error, self.encoder.pose_covariance))
         ranges, bearings, ids = measurement
         return {

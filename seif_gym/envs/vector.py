@@ -78,7 +78,8 @@ def _score_env(e: int, true_poses: FloatArray, truth: FloatArray, mean: FloatArr
     """Reward, map error, pose error, divergence and the two pose NEES of env ``e`` (``SeifExploreEnv.step``).
 
     ``pose_nees[e]`` is left NaN for a map of more than ``dense_up_to`` landmarks: a dense factorisation
-    of its Omega does not belong in a step, the caller solves those sparsely.
+    of its Omega does not belong in a step, the caller solves those sparsely (``-1``: every map, for
+    ``exact_pose_nees=False``).
     """
     error = np.empty(3)
     n = counters[e, 0]
@@ -269,6 +270,8 @@ class SeifExploreVectorEnv(VectorEnv):
         self._scale = template._action_scale
         #: whether a map can outgrow the compiled dense pose marginal (then the sparse one runs for it)
         self._large_maps = template.world_config.num_landmarks > DENSE_MARGINALS_UP_TO
+        # exact_pose_nees=False: no env's pose marginal is factorised (the kernels leave NaN above this many landmarks)
+        self._nees_up_to = DENSE_MARGINALS_UP_TO if template.exact_pose_nees else -1
         self._env_rows = np.arange(n)[:, None]
         self._landmarks_total = np.full(n, template.world_config.num_landmarks, dtype=np.int64)
         self._info_template: dict[str, Any] | None = None
@@ -360,7 +363,7 @@ class SeifExploreVectorEnv(VectorEnv):
                         filters.robot_links, filters.landmark_info, filters.neighbour_index, filters.neighbour_info,
                         filters.neighbour_count, filters.information_vector, filters.block_position,
                         self._blanket_covariances, reward_config.d_cap, self._previous_error, wall,
-                        reward_config.wall_penalty, reward_config.divergence_threshold, DENSE_MARGINALS_UP_TO, rewards,
+                        reward_config.wall_penalty, reward_config.divergence_threshold, self._nees_up_to, rewards,
                         map_error, pose_error, diverged, pose_nees, pose_nees_blanket)  # fmt: skip
         else:
             with numba_threads(self.num_threads):
@@ -372,10 +375,11 @@ class SeifExploreVectorEnv(VectorEnv):
                     config.std_scale, obs["pose"], obs["landmarks"], obs["landmarks_mask"], obs["belief_map"],
                     self._blanket_covariances,
                     world.poses, self._truth, reward_config.d_cap, self._previous_error, wall,
-                    reward_config.wall_penalty, reward_config.divergence_threshold, DENSE_MARGINALS_UP_TO, rewards,
+                    reward_config.wall_penalty, reward_config.divergence_threshold, self._nees_up_to, rewards,
                     map_error, pose_error, diverged, pose_nees, pose_nees_blanket,
                 )  # fmt: skip
-        large = (np.flatnonzero(filters.counters[:, 0] > DENSE_MARGINALS_UP_TO).tolist() if self._large_maps
+        large = (np.flatnonzero(filters.counters[:, 0] > DENSE_MARGINALS_UP_TO).tolist()
+                 if self._large_maps and template.exact_pose_nees
                  else ())  # fmt: skip
         for e in large:
             # large maps: the single env's sparse LU on this env's arrays (exactly what it computes)

@@ -79,7 +79,7 @@ import json
 import os
 import sys
 import time
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -299,6 +299,7 @@ def _experiment_class() -> type:
         """
 
         callbacks: list[Any]  # set by ExperimentManager.__init__
+        env_kwargs: dict[str, Any]  # set by ExperimentManager.__init__, settled by _preprocess_hyperparams
 
         def __init__(self, args: argparse.Namespace) -> None:
             self.options = args
@@ -331,6 +332,17 @@ def _experiment_class() -> type:
                 self.save_path = str(Path(args.out))
                 self.params_path = os.path.join(self.save_path, self.env_name)
             self.tensorboard_log = os.path.join(self.save_path, "tb")
+
+        def _preprocess_hyperparams(
+            self, hyperparams: dict[str, Any]
+        ) -> tuple[dict[str, Any], Callable[..., Any] | None, list[Any], Callable[..., Any] | None]:
+            processed = super()._preprocess_hyperparams(hyperparams)
+            # every env of the run (training, validation, kickstart) without info["pose_nees"]: nothing in
+            # training reads it, and its exact marginal factorises Omega every step
+            # (agents.evaluate.make_evaluation_env); the entry's or --env-kwargs' own value wins. After
+            # rl-zoo3 has settled env_kwargs (command line over entry) and recorded them in config.yml.
+            self.env_kwargs = {"exact_pose_nees": False, **self.env_kwargs}
+            return processed
 
         # -- envs ------------------------------------------------------------------------------------
         def uses_native(self) -> bool:

@@ -585,3 +585,36 @@ def test_checkpoint_statistics_are_picklable_objects(small_model, tmp_path):
     with open(stats_path, "rb") as handle:
         direct = pickle.load(handle)
     assert np.array_equal(load_vecnormalize_stats(stats_path).obs_rms["pose"].mean, direct.obs_rms["pose"].mean)
+
+
+def _single_envs(model) -> list:
+    """The single envs under a model's vector env, whichever backend trains it."""
+    venv = model.get_env()
+    while not hasattr(venv, "envs"):
+        venv = venv.venv
+    return [getattr(env, "unwrapped", env) for env in venv.envs]
+
+
+@pytest.mark.parametrize(
+    "extra, native",
+    [
+        (["env_wrapper=null"], True),  # the native vector env
+        (["env_wrapper=agents.shaping.CoverageShaping"], False),  # single envs under a wrapper
+    ],
+    ids=["native", "wrapped"],
+)
+def test_training_envs_leave_out_the_exact_nees_unless_asked(tmp_path, extra, native):
+    """No training env factorises Omega for info['pose_nees']; --env-kwargs may ask for it; config.yml records neither."""
+    for asked in (None, True):
+        kwargs = {"num_landmarks": 10, "max_episode_steps": 60, **({} if asked is None else {"exact_pose_nees": asked})}
+        argv = [*SMALL, *extra, "--out", str(tmp_path / f"run_{asked}"), "--quiet"]
+        argv[argv.index("--env-kwargs") + 1] = json.dumps(kwargs)
+        experiment, model = prepare(build_parser().parse_args(argv))
+        assert experiment.uses_native() is native
+        want = asked is True
+        assert [env.exact_pose_nees for env in _single_envs(model)] == [want, want]
+        (validation,) = [c for c in experiment.callbacks if isinstance(c, MapErrorEvalCallback)]
+        assert validation.env_kwargs["exact_pose_nees"] is want
+        model.get_env().close()
+        config = (tmp_path / f"run_{asked}" / "SeifExplore-v1" / "config.yml").read_text()
+        assert ("exact_pose_nees" in config) is (asked is not None)

@@ -365,7 +365,7 @@ class SeifExploreEnv(gym.Env):
     | `nearest_landmarks`, `map_size`, `map_extent`, `std_scale` | 8, 40, 8.0, 1.0 | observation shape (`ObservationConfig`) |
     | `coverage_resolution` | 0.5 | cell size of the swept-area grid, metres |
     | `measure_time` | `False` | fill `info["step_time"]` with the wall-clock seconds spent in the filter (otherwise 0.0: wall-clock time would make seeded episodes irreproducible) |
-    | `exact_pose_nees` | `True` | fill `info["pose_nees"]` (otherwise NaN, and nothing else changes): the exact pose marginal factorises Ω every step, which on maps of more than 60 landmarks costs more than the rest of the step; evaluation, selection and validation, which never read it, turn it off |
+    | `exact_pose_nees` | `True` | fill `info["pose_nees"]` (otherwise NaN, and nothing else changes): the exact pose marginal factorises Ω every step, which on maps of more than 60 landmarks costs more than the rest of the step; `agents.train` and the evaluation tools, which never read it, turn it off |
     | `render_mode` | `None` | `"rgb_array"` or `"human"` |
 
     ## Version History

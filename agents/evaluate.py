@@ -485,7 +485,7 @@ def make_evaluation_env(env_id: str, env_kwargs: Mapping[str, Any]) -> gym.Env:
     No metric of an evaluation reads ``info["pose_nees"]``, and its exact pose
     marginal factorises the information matrix every step (on the large
     world's 120-landmark maps 40% of an episode's time); everything else the
-    env computes is the same (``tests/test_evaluate.py``). ``env_kwargs`` may
+    env computes is the same (``tests/test_agents.py``). ``env_kwargs`` may
     still ask for it.
     """
     return gym.make(env_id, **{"exact_pose_nees": False, **env_kwargs})

@@ -146,6 +146,7 @@ __all__ = [
     "check_agent_spec",
     "build_agent",
     "make_evaluation_env",
+    "without_exact_nees",
     "run_episode",
     "mean_ci",
     "paired_difference",
@@ -479,6 +480,13 @@ def _carries_over(target: str) -> bool:
     return target in BASELINES and baseline_class(target).carries_over_episodes
 
 
+def without_exact_nees(env_kwargs: Mapping[str, Any]) -> dict[str, Any]:
+    """``env_kwargs`` with ``exact_pose_nees=False`` unless they set it (:func:`make_evaluation_env`)."""
+    if not isinstance(env_kwargs, Mapping):
+        raise TypeError(f"env_kwargs must be a mapping, got {type(env_kwargs).__name__}")
+    return {"exact_pose_nees": False, **env_kwargs}
+
+
 def make_evaluation_env(env_id: str, env_kwargs: Mapping[str, Any]) -> gym.Env:
     """The env an evaluation steps: ``gym.make(env_id, **env_kwargs)`` with ``exact_pose_nees=False``.
 
@@ -488,7 +496,7 @@ def make_evaluation_env(env_id: str, env_kwargs: Mapping[str, Any]) -> gym.Env:
     env computes is the same (``tests/test_agents.py``). ``env_kwargs`` may
     still ask for it.
     """
-    return gym.make(env_id, **{"exact_pose_nees": False, **env_kwargs})
+    return gym.make(env_id, **without_exact_nees(env_kwargs))
 
 
 def _run_episodes(

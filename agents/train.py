@@ -336,12 +336,14 @@ def _experiment_class() -> type:
         def _preprocess_hyperparams(
             self, hyperparams: dict[str, Any]
         ) -> tuple[dict[str, Any], Callable[..., Any] | None, list[Any], Callable[..., Any] | None]:
+            from agents.evaluate import without_exact_nees
+
             processed = super()._preprocess_hyperparams(hyperparams)
             # every env of the run (training, validation, kickstart) without info["pose_nees"]: nothing in
             # training reads it, and its exact marginal factorises Omega every step
             # (agents.evaluate.make_evaluation_env); the entry's or --env-kwargs' own value wins. After
             # rl-zoo3 has settled env_kwargs (command line over entry) and recorded them in config.yml.
-            self.env_kwargs = {"exact_pose_nees": False, **self.env_kwargs}
+            self.env_kwargs = without_exact_nees(self.env_kwargs)
             return processed
 
         # -- envs ------------------------------------------------------------------------------------

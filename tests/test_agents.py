@@ -670,6 +670,8 @@ def test_evaluation_env_leaves_out_only_the_exact_nees():
     row_cheap.pop("decision_time_ms"), row_plain.pop("decision_time_ms")  # wall-clock time
     assert row_cheap == row_plain and trace_cheap == trace_plain
     assert row_plain["landmarks_mapped"] > 60  # past the dense factorisation: the sparse one left out too
+    with pytest.raises(TypeError, match="env_kwargs"):
+        make_evaluation_env("SeifExplore-v2", [("num_landmarks", 80)])
     asked = make_evaluation_env("SeifExplore-v2", {"exact_pose_nees": True})
     assert asked.unwrapped.exact_pose_nees is True  # env_kwargs still decide
     for env in (cheap, plain, asked):

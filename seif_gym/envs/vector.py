@@ -268,8 +268,8 @@ class SeifExploreVectorEnv(VectorEnv):
         self._elapsed = np.zeros(n, dtype=np.int64)
         self._autoreset = np.zeros(n, dtype=bool)
         self._scale = template._action_scale
-        #: whether a map can outgrow the compiled dense pose marginal (then the sparse one runs for it)
-        self._large_maps = template.world_config.num_landmarks > DENSE_MARGINALS_UP_TO
+        #: whether a map can outgrow the compiled dense pose marginal and the NEES is asked (then the sparse one runs)
+        self._sparse_nees = template.exact_pose_nees and template.world_config.num_landmarks > DENSE_MARGINALS_UP_TO
         # exact_pose_nees=False: no env's pose marginal is factorised (the kernels leave NaN above this many landmarks)
         self._nees_up_to = DENSE_MARGINALS_UP_TO if template.exact_pose_nees else -1
         self._env_rows = np.arange(n)[:, None]
@@ -378,8 +378,7 @@ class SeifExploreVectorEnv(VectorEnv):
                     reward_config.wall_penalty, reward_config.divergence_threshold, self._nees_up_to, rewards,
                     map_error, pose_error, diverged, pose_nees, pose_nees_blanket,
                 )  # fmt: skip
-        large = (np.flatnonzero(filters.counters[:, 0] > DENSE_MARGINALS_UP_TO).tolist()
-                 if self._large_maps and template.exact_pose_nees
+        large = (np.flatnonzero(filters.counters[:, 0] > DENSE_MARGINALS_UP_TO).tolist() if self._sparse_nees
                  else ())  # fmt: skip
         for e in large:
             # large maps: the single env's sparse LU on this env's arrays (exactly what it computes)

@@ -37,7 +37,7 @@ import numpy as np
 
 from agents.baselines import Geometry
 from agents.entries import with_entry
-from seif_gym.envs.explore import _check_positive  # the env's own check of its geometry numbers
+from seif_gym.validation import as_positive_scalar
 
 __all__ = ["UNSWEPT", "CoverageMemory", "CoverageMemoryObservation", "uses_coverage_memory"]
 
@@ -78,11 +78,11 @@ class CoverageMemory:
     def __init__(self, geometry: Geometry, *, cell: float = 2.0, sectors: int = 8, near: float | None = None) -> None:
         if not isinstance(geometry, Geometry):
             raise TypeError(f"geometry must be a Geometry, got {type(geometry).__name__}")
-        _check_positive("cell", cell)
+        as_positive_scalar(cell, "cell")
         if isinstance(sectors, bool) or not isinstance(sectors, (int, np.integer)) or sectors < 1:
             raise ValueError(f"sectors must be a positive integer, got {sectors!r}")
         if near is not None:
-            _check_positive("near", near)
+            as_positive_scalar(near, "near")
         self.near = 2.0 * geometry.sensor_range if near is None else float(near)
         self.geometry, self.cell, self.sectors = geometry, float(cell), int(sectors)
         n = max(1, math.ceil(geometry.arena_size / cell))

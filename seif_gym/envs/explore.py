@@ -32,6 +32,7 @@ from seif_gym.slam.association import ASSOCIATOR_PRESETS, AssociationAudit, make
 from seif_gym.slam.models import wrap_angle
 from seif_gym.slam.noise_models import PerSecondVelocityMotionModel, RangeDependentSensor
 from seif_gym.type_aliases import FloatArray
+from seif_gym.validation import as_nonnegative_scalar, as_positive_scalar
 from seif_gym.world import World, WorldConfig, make_landmarks
 
 if TYPE_CHECKING:
@@ -44,15 +45,6 @@ __all__ = [
 
 
 REWARDS = ("map_error", "information_gain")
-
-
-def _check_positive(name: str, value: Any, allow_zero: bool = False) -> None:
-    """Raise ``TypeError``/``ValueError`` naming ``name`` unless ``value`` is a finite positive number."""
-    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
-        raise TypeError(f"{name} must be a number, got {type(value).__name__}")
-    if not math.isfinite(value) or value < 0 or (value == 0 and not allow_zero):
-        kind = "non-negative" if allow_zero else "positive"
-        raise ValueError(f"{name} must be a finite {kind} number, got {value!r}")
 
 
 class Measurements(NamedTuple):
@@ -86,7 +78,7 @@ class RobotConfig:
 
     def __post_init__(self) -> None:
         for name in ("dt", "max_speed", "max_turn_rate"):
-            _check_positive(name, getattr(self, name))
+            as_positive_scalar(getattr(self, name), name)
         if not isinstance(self.motion_model, str) or self.motion_model not in MOTION_MODELS:
             raise ValueError(f"motion_model must be one of {tuple(MOTION_MODELS)}, got {self.motion_model!r}")
         count = MOTION_MODELS[self.motion_model]
@@ -118,7 +110,7 @@ class SensorConfig:
 
     def __post_init__(self) -> None:
         for name in ("sensor_range", "fov", "sigma_range", "sigma_bearing"):
-            _check_positive(name, getattr(self, name))
+            as_positive_scalar(getattr(self, name), name)
         minimum = self.sensor_min_range
         if isinstance(minimum, bool) or not isinstance(minimum, (int, float)) or not 0.0 <= minimum < self.sensor_range:
             raise ValueError(f"sensor_min_range must be a number in [0, sensor_range), got {minimum!r}")
@@ -138,7 +130,7 @@ class SensorConfig:
                     f"range_noise must be (a, lo, hi) with a > 0 and 0 < lo <= hi, got {self.range_noise!r}"
                 )
         if self.range_error_time is not None:
-            _check_positive("range_error_time", self.range_error_time)
+            as_positive_scalar(self.range_error_time, "range_error_time")
 
 
 def make_models(
@@ -219,8 +211,8 @@ class RewardConfig:
         if self.reward not in REWARDS:
             raise ValueError(f"reward must be one of {REWARDS}, got {self.reward!r}")
         for name in ("d_cap", "divergence_threshold"):
-            _check_positive(name, getattr(self, name))
-        _check_positive("wall_penalty", self.wall_penalty, allow_zero=True)
+            as_positive_scalar(getattr(self, name), name)
+        as_nonnegative_scalar(self.wall_penalty, "wall_penalty")
 
 
 def _no_clock() -> float:

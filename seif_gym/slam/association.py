@@ -144,9 +144,9 @@ from numba import njit
 from numpy.typing import ArrayLike
 
 from seif_gym.slam._kernels import range_bearing_jacobian
-from seif_gym.slam._validation import as_finite_array, as_positive_scalar
 from seif_gym.slam.marginals import breadth_first_joint_covariance, supports_breadth_first
 from seif_gym.type_aliases import FloatArray, IntArray
+from seif_gym.validation import as_finite_array, as_positive_scalar
 
 if TYPE_CHECKING:  # for annotations only
     from seif_gym.slam.base import SlamFilter

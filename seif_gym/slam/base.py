@@ -16,16 +16,16 @@ import numpy as np
 import scipy.sparse
 from numpy.typing import ArrayLike, NDArray
 
-from seif_gym.slam._validation import (
+from seif_gym.slam.models import MotionModel, RangeBearingSensor, wrap_angle
+from seif_gym.slam.noise_models import mahalanobis_squared
+from seif_gym.type_aliases import FloatArray
+from seif_gym.validation import (
     as_covariance,
     as_finite_array,
     as_finite_vector,
     as_id_array,
     as_positive_scalar,
 )
-from seif_gym.slam.models import MotionModel, RangeBearingSensor, wrap_angle
-from seif_gym.slam.noise_models import mahalanobis_squared
-from seif_gym.type_aliases import FloatArray
 
 __all__ = [
     "SlamFilter",

@@ -34,13 +34,13 @@ from numba import njit
 from numpy.typing import ArrayLike
 
 from seif_gym.slam import _kernels
-from seif_gym.slam._validation import as_finite_array, as_positive_scalar
 from seif_gym.slam.base import DEFAULT_INITIAL_POSE_COV
 from seif_gym.slam.eseif import ESEIF, RELOCALIZATION_RCOND
 from seif_gym.slam.information import InformationStore
 from seif_gym.slam.models import RangeBearingSensor, VelocityMotionModel, wrap_angle
 from seif_gym.slam.seif import SEIF
 from seif_gym.type_aliases import BoolArray, FloatArray, IntArray
+from seif_gym.validation import as_finite_array, as_positive_scalar
 
 __all__ = ["BatchedSEIF", "BatchedESEIF"]
 

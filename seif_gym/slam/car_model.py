@@ -47,9 +47,9 @@ import math
 import numpy as np
 from numpy.typing import ArrayLike
 
-from seif_gym.slam._validation import _as_real_scalar, as_finite_vector, as_nonnegative_scalar, as_positive_scalar
 from seif_gym.slam.models import wrap_angle
 from seif_gym.type_aliases import FloatArray
+from seif_gym.validation import as_finite_vector, as_nonnegative_scalar, as_positive_scalar, as_real_scalar
 
 __all__ = ["AckermannLaserModel"]
 
@@ -107,8 +107,8 @@ class AckermannLaserModel:
     ) -> None:
         self.wheelbase = as_positive_scalar(wheelbase, "wheelbase")
         self.encoder_offset = as_nonnegative_scalar(encoder_offset, "encoder_offset")
-        self.laser_ahead = _as_real_scalar(laser_ahead, "laser_ahead")
-        self.laser_lateral = _as_real_scalar(laser_lateral, "laser_lateral")
+        self.laser_ahead = as_real_scalar(laser_ahead, "laser_ahead")
+        self.laser_lateral = as_real_scalar(laser_lateral, "laser_lateral")
         self.sigma_speed = as_nonnegative_scalar(sigma_speed, "sigma_speed")
         self.sigma_speed_rel = as_nonnegative_scalar(sigma_speed_rel, "sigma_speed_rel")
         self.sigma_steering = as_nonnegative_scalar(sigma_steering, "sigma_steering")

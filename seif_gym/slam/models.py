@@ -20,12 +20,12 @@ import numpy as np
 from numba import njit
 from numpy.typing import ArrayLike, NDArray
 
-from seif_gym.slam._validation import (
+from seif_gym.type_aliases import FloatArray
+from seif_gym.validation import (
     as_finite_array,
     as_finite_vector,
     as_positive_scalar,
 )
-from seif_gym.type_aliases import FloatArray
 
 __all__ = [
     "wrap_angle",

@@ -34,15 +34,15 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from seif_gym.slam._validation import (
-    _as_real_scalar,
+from seif_gym.slam.models import MotionModel, RangeBearingSensor, _sinc_and_derivative, wrap_angle
+from seif_gym.type_aliases import FloatArray
+from seif_gym.validation import (
     as_finite_array,
     as_finite_vector,
     as_nonnegative_scalar,
     as_positive_scalar,
+    as_real_scalar,
 )
-from seif_gym.slam.models import MotionModel, RangeBearingSensor, _sinc_and_derivative, wrap_angle
-from seif_gym.type_aliases import FloatArray
 
 __all__ = [
     "CommandCorrection",
@@ -293,7 +293,7 @@ class CommandCorrection:
             object.__setattr__(self, name, as_positive_scalar(getattr(self, name), name))
         object.__setattr__(self, "turn_slowdown", as_nonnegative_scalar(self.turn_slowdown, "turn_slowdown"))
         for name in ("speed_offset", "turn_offset"):
-            object.__setattr__(self, name, _as_real_scalar(getattr(self, name), name))
+            object.__setattr__(self, name, as_real_scalar(getattr(self, name), name))
 
     @property
     def is_identity(self) -> bool:

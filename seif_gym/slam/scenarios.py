@@ -23,10 +23,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from seif_gym.slam._validation import as_finite_array, as_nonnegative_scalar, as_positive_scalar
 from seif_gym.slam.models import RangeBearingSensor, VelocityMotionModel
 from seif_gym.slam.simulation import SimulatedRun, simulate_run
 from seif_gym.type_aliases import FloatArray
+from seif_gym.validation import as_finite_array, as_nonnegative_scalar, as_positive_scalar
 
 __all__ = ["LoopScenario", "FIDELITY_SCENARIOS", "loop_path_controls", "loop_landmarks", "make_loop_run"]
 

@@ -37,9 +37,9 @@ from numpy.typing import ArrayLike, NDArray
 
 # the metric has one home, seif_gym.metrics; re-exported here, where it was first defined
 from seif_gym.metrics import pose_nees  # noqa: F401  (after the slam imports: metrics imports slam.models)
-from seif_gym.slam._validation import as_finite_array, as_finite_vector, as_positive_scalar
 from seif_gym.slam.models import wrap_angle
 from seif_gym.type_aliases import FloatArray, IntArray
+from seif_gym.validation import as_finite_array, as_finite_vector, as_positive_scalar
 
 if TYPE_CHECKING:  # imported for annotations only: no import cycle at run time
     from seif_gym.slam.base import SlamFilter

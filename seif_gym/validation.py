@@ -1,8 +1,17 @@
-"""Input checks shared by the models and the filters.
+"""Input checks shared by the filters, the models, the env and its wrappers.
 
-Every public entry point of :mod:`seif_gym.slam` validates its arguments here
-*before* it touches any state, so a bad call raises a clear ``ValueError`` or
+Every public entry point of :mod:`seif_gym.slam`, the env's configurations
+and the observation wrappers validate their arguments here *before* they
+touch any state, so a bad call raises a clear ``ValueError`` or
 ``TypeError`` naming the argument and leaves the object exactly as it was.
+
+>>> from seif_gym.validation import as_positive_scalar
+>>> as_positive_scalar(2, "cell")
+2.0
+>>> as_positive_scalar(0.0, "cell")
+Traceback (most recent call last):
+    ...
+ValueError: cell must be positive, got 0.0
 """
 
 from __future__ import annotations
@@ -17,6 +26,7 @@ from numpy.typing import NDArray
 __all__ = [
     "as_finite_vector",
     "as_finite_array",
+    "as_real_scalar",
     "as_positive_scalar",
     "as_nonnegative_scalar",
     "as_id_array",
@@ -58,7 +68,8 @@ def as_finite_vector(value: Any, name: str, length: int) -> NDArray[np.float64]:
     return as_finite_array(value, name, (length,))
 
 
-def _as_real_scalar(value: Any, name: str) -> float:
+def as_real_scalar(value: Any, name: str) -> float:
+    """Return ``value`` (a real number or a 0-d numeric array) as a finite float."""
     if isinstance(value, bool) or not isinstance(value, (numbers.Real, np.floating, np.integer)):
         if isinstance(value, np.ndarray) and value.shape == () and np.issubdtype(value.dtype, np.number):
             value = value.item()
@@ -72,7 +83,7 @@ def _as_real_scalar(value: Any, name: str) -> float:
 
 def as_positive_scalar(value: Any, name: str) -> float:
     """Return ``value`` as a finite float that is strictly positive."""
-    result = _as_real_scalar(value, name)
+    result = as_real_scalar(value, name)
     if result <= 0.0:
         raise ValueError(f"{name} must be positive, got {result}")
     return result
@@ -80,7 +91,7 @@ def as_positive_scalar(value: Any, name: str) -> float:
 
 def as_nonnegative_scalar(value: Any, name: str) -> float:
     """Return ``value`` as a finite float that is zero or positive."""
-    result = _as_real_scalar(value, name)
+    result = as_real_scalar(value, name)
     if result < 0.0:
         raise ValueError(f"{name} must be non-negative, got {result}")
     return result

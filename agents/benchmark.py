@@ -300,9 +300,9 @@ def benchmark_variant(env_id: str, agents: Sequence[str], episodes: int, seed: i
             if not policy_fits(policy, env_id):
                 skipped.append(name)
                 continue
-            spec = str(policy.path)
-            specs.append(spec)
-            labels[Path(spec).stem], kinds[Path(spec).stem] = name, "policy"
+            # labelled by its leaderboard name, so the variant's own summary says what the leaderboard says
+            specs.append(f"{name}={policy.path}")
+            labels[name], kinds[name] = name, "policy"
     started = time.perf_counter()
     rows, summary = evaluate_agents(
         specs, episodes=episodes, seed=seed, env_id=env_id, env_kwargs={}, verbose=verbose, executor=executor

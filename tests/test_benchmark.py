@@ -89,6 +89,17 @@ def test_run_benchmark_writes_the_leaderboard(tmp_path, monkeypatch):
     assert math.isfinite(by_agent["random"]["final_map_error"])
 
 
+def test_a_shipped_policy_goes_by_its_leaderboard_name_in_the_variants_own_files(tmp_path):
+    # the file is ppo_seif_explore.zip; the leaderboard, results.csv and summary.md all call it ppo
+    rows = benchmark.run_benchmark(["SeifExplore-v0"], ["frontier", "ppo"], episodes=1, seed=7, out=tmp_path)
+    assert [row["agent"] for row in rows] == ["frontier", "ppo"]
+    assert rows[1]["kind"] == "policy" and rows[1]["episodes"] == 1
+    with (tmp_path / "SeifExplore-v0" / "results.csv").open() as handle:
+        assert {row["agent"] for row in csv.DictReader(handle)} == {"frontier", "ppo"}
+    summary = (tmp_path / "SeifExplore-v0" / "summary.md").read_text()
+    assert "| ppo |" in summary and "ppo_seif_explore" not in summary
+
+
 def test_held_out_episodes_are_400_on_the_short_tasks_and_100_on_the_others():
     assert benchmark.held_out_episodes("SeifExploreClusteredBudget-v2") == 400  # 100 steps
     assert benchmark.held_out_episodes("SeifExploreLoopBudget-v2") == 400  # 150 steps

@@ -27,13 +27,13 @@ True
 
 from __future__ import annotations
 
-import math
 from typing import Any, cast
 
 import gymnasium as gym
 import numpy as np
 
 from seif_gym.envs.explore import SeifExploreEnv
+from seif_gym.validation import as_nonnegative_scalar
 
 __all__ = ["CoverageShaping"]
 
@@ -57,10 +57,7 @@ class CoverageShaping(gym.Wrapper, gym.utils.RecordConstructorArgs):
 
     def __init__(self, env: gym.Env, coef: float = 1.0, gamma: float = 0.995) -> None:
         for name, value in (("coef", coef), ("gamma", gamma)):
-            if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
-                raise TypeError(f"{name} must be a number, got {type(value).__name__}")
-            if not math.isfinite(value) or value < 0:
-                raise ValueError(f"{name} must be a finite non-negative number, got {value!r}")
+            as_nonnegative_scalar(value, name)
         if gamma > 1:
             raise ValueError(f"gamma must be at most 1, got {gamma!r}")
         if not isinstance(env.unwrapped, SeifExploreEnv):

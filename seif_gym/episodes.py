@@ -41,7 +41,6 @@ True
 from __future__ import annotations
 
 import json
-import math
 import operator
 import os
 import time
@@ -62,6 +61,7 @@ from seif_gym.slam.association import AssociationAudit, make_associator
 from seif_gym.slam.base import COMMON_OPTIONS
 from seif_gym.slam.noise_models import PerSecondVelocityMotionModel
 from seif_gym.type_aliases import FloatArray, IntArray
+from seif_gym.validation import as_positive_scalar
 
 __all__ = ["Episode", "EpisodeRecorder", "ReplayResult", "replay", "episode_models"]
 
@@ -200,11 +200,7 @@ class Episode:
             if isinstance(self.seed, bool):
                 raise TypeError("seed must be an int or None, got bool")
             set_field(self, "seed", operator.index(self.seed))
-        if isinstance(self.dt, bool) or not isinstance(self.dt, (int, float, np.integer, np.floating)):
-            raise TypeError(f"dt must be a number, got {type(self.dt).__name__}")
-        dt = float(self.dt)
-        if not (math.isfinite(dt) and dt > 0):
-            raise ValueError(f"dt must be a positive number, got {self.dt!r}")
+        dt = as_positive_scalar(self.dt, "dt")
         set_field(self, "dt", dt)
         for name, (dtype, _) in _ARRAYS.items():
             set_field(self, name, _read_only(getattr(self, name), dtype))

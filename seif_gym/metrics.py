@@ -51,6 +51,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from seif_gym.slam.models import wrap_angle
 from seif_gym.type_aliases import FloatArray
+from seif_gym.validation import as_positive_scalar
 
 if TYPE_CHECKING:  # annotations only
     from seif_gym.slam.association import AssociationAudit
@@ -140,11 +141,7 @@ def map_error(estimates: ArrayLike, truth: ArrayLike, ids: ArrayLike, d_cap: flo
                          f"of {ids.dtype}")  # fmt: skip
     if ids.size and (ids.min() < 0 or ids.max() >= truth.shape[0]):
         raise ValueError(f"ids must lie in [0, {truth.shape[0]}), got {ids.min()} .. {ids.max()}")
-    if isinstance(d_cap, bool) or not isinstance(d_cap, (int, float, np.integer, np.floating)):
-        raise TypeError(f"d_cap must be a number, got {type(d_cap).__name__}")
-    if not (math.isfinite(d_cap) and d_cap > 0):
-        raise ValueError(f"d_cap must be a finite positive number, got {d_cap!r}")
-    return _map_error(estimates, truth, ids, d_cap)
+    return _map_error(estimates, truth, ids, as_positive_scalar(d_cap, "d_cap"))
 
 
 def filter_map_error(filt: SlamFilter, truth: FloatArray, d_cap: float, audit: AssociationAudit | None = None) -> float:

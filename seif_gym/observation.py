@@ -28,6 +28,7 @@ from seif_gym.slam._kernels import blanket_covariances, blanket_nodes, condition
 from seif_gym.slam.base import SlamFilter
 from seif_gym.slam.models import RangeBearingSensor
 from seif_gym.type_aliases import Float32Array, FloatArray, IntArray, UInt8Array
+from seif_gym.validation import as_positive_scalar
 
 __all__ = [
     "ObservationConfig", "BeliefEncoder", "ObservationDecoder", "BeliefRaster", "read_belief_map", "landmark_rows",
@@ -482,11 +483,7 @@ class ObservationDecoder:
     config: ObservationConfig = ObservationConfig()
 
     def __post_init__(self) -> None:
-        size = self.arena_size
-        if isinstance(size, bool) or not isinstance(size, (int, float, np.integer, np.floating)):
-            raise TypeError(f"arena_size must be a number, got {type(size).__name__}")
-        if not (math.isfinite(size) and size > 0):
-            raise ValueError(f"arena_size must be a finite positive number, got {size!r}")
+        size = as_positive_scalar(self.arena_size, "arena_size")
         if not isinstance(self.config, ObservationConfig):
             raise TypeError(f"config must be an ObservationConfig, got {type(self.config).__name__}")
         object.__setattr__(self, "arena_size", float(size))

@@ -64,3 +64,26 @@ def test_the_env_and_the_coverage_memory_check_with_it():
         CoverageMemory(geometry, cell=0.0)
     with pytest.raises(TypeError, match="near must be a real number"):
         CoverageMemory(geometry, near="far")
+
+
+def test_the_metrics_the_decoder_and_the_shaping_check_with_it():
+    import gymnasium as gym
+
+    from agents.shaping import CoverageShaping
+    from seif_gym.metrics import map_error
+    from seif_gym.observation import ObservationDecoder
+
+    truth = np.zeros((2, 2))
+    with pytest.raises(ValueError, match="d_cap must be positive, got -1.0"):
+        map_error(np.zeros((1, 2)), truth, [0], d_cap=-1.0)
+    with pytest.raises(TypeError, match="d_cap must be a real number, got str"):
+        map_error(np.zeros((1, 2)), truth, [0], d_cap="1")
+    assert map_error(np.zeros((1, 2)), truth, [0], d_cap=np.float32(2.0)) == pytest.approx(1.0)
+    with pytest.raises(ValueError, match="arena_size must be finite"):
+        ObservationDecoder(arena_size=float("inf"))
+    assert ObservationDecoder(arena_size=np.int64(20)).arena_size == 20.0
+    env = gym.make("SeifExplore-v2")
+    with pytest.raises(ValueError, match="coef must be non-negative, got -1.0"):
+        CoverageShaping(env, coef=-1.0)
+    with pytest.raises(TypeError, match="gamma must be a real number, got bool"):
+        CoverageShaping(env, gamma=True)

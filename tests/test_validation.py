@@ -59,6 +59,9 @@ def test_the_env_and_the_coverage_memory_check_with_it():
     with pytest.raises(ValueError, match="wall_penalty must be non-negative"):
         RewardConfig(wall_penalty=-1.0)
     RewardConfig(wall_penalty=0.0)  # zero switches the penalty off
+    # what passed the check is what the config keeps: a plain float, never the 0-d array it came as
+    sensor = SensorConfig(sensor_range=np.array(8.0), fov=np.int64(3))
+    assert type(sensor.sensor_range) is float and sensor.sensor_range == 8.0 and type(sensor.fov) is float
     geometry = Geometry.from_env(gym.make("SeifExplore-v2"))
     with pytest.raises(ValueError, match="cell must be positive"):
         CoverageMemory(geometry, cell=0.0)

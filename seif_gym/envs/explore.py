@@ -77,8 +77,8 @@ class RobotConfig:
     motion_model: str = "thrun"
 
     def __post_init__(self) -> None:
-        for name in ("dt", "max_speed", "max_turn_rate"):
-            as_positive_scalar(getattr(self, name), name)
+        for name in ("dt", "max_speed", "max_turn_rate"):  # kept as the checked float (a 0-d array is no config value)
+            object.__setattr__(self, name, as_positive_scalar(getattr(self, name), name))
         if not isinstance(self.motion_model, str) or self.motion_model not in MOTION_MODELS:
             raise ValueError(f"motion_model must be one of {tuple(MOTION_MODELS)}, got {self.motion_model!r}")
         count = MOTION_MODELS[self.motion_model]
@@ -110,7 +110,7 @@ class SensorConfig:
 
     def __post_init__(self) -> None:
         for name in ("sensor_range", "fov", "sigma_range", "sigma_bearing"):
-            as_positive_scalar(getattr(self, name), name)
+            object.__setattr__(self, name, as_positive_scalar(getattr(self, name), name))
         minimum = self.sensor_min_range
         if isinstance(minimum, bool) or not isinstance(minimum, (int, float)) or not 0.0 <= minimum < self.sensor_range:
             raise ValueError(f"sensor_min_range must be a number in [0, sensor_range), got {minimum!r}")
@@ -130,7 +130,7 @@ class SensorConfig:
                     f"range_noise must be (a, lo, hi) with a > 0 and 0 < lo <= hi, got {self.range_noise!r}"
                 )
         if self.range_error_time is not None:
-            as_positive_scalar(self.range_error_time, "range_error_time")
+            object.__setattr__(self, "range_error_time", as_positive_scalar(self.range_error_time, "range_error_time"))
 
 
 def make_models(
@@ -211,8 +211,8 @@ class RewardConfig:
         if self.reward not in REWARDS:
             raise ValueError(f"reward must be one of {REWARDS}, got {self.reward!r}")
         for name in ("d_cap", "divergence_threshold"):
-            as_positive_scalar(getattr(self, name), name)
-        as_nonnegative_scalar(self.wall_penalty, "wall_penalty")
+            object.__setattr__(self, name, as_positive_scalar(getattr(self, name), name))
+        object.__setattr__(self, "wall_penalty", as_nonnegative_scalar(self.wall_penalty, "wall_penalty"))
 
 
 def _no_clock() -> float:

@@ -29,6 +29,8 @@ __all__ = [
     "as_real_scalar",
     "as_positive_scalar",
     "as_nonnegative_scalar",
+    "as_scalar_between",
+    "as_count",
     "as_id_array",
     "as_covariance",
 ]
@@ -95,6 +97,42 @@ def as_nonnegative_scalar(value: Any, name: str) -> float:
     if result < 0.0:
         raise ValueError(f"{name} must be non-negative, got {result}")
     return result
+
+
+def as_scalar_between(value: Any, name: str, low: float, high: float) -> float:
+    """Return ``value`` as a finite float strictly between ``low`` and ``high``.
+
+    >>> as_scalar_between(1.5, "recovery_relaxation", 0.0, 2.0)
+    1.5
+    >>> as_scalar_between(1, "split_weight", 0.0, 1.0)
+    Traceback (most recent call last):
+        ...
+    ValueError: split_weight must lie strictly between 0.0 and 1.0, got 1.0
+    """
+    result = as_real_scalar(value, name)
+    if not low < result < high:
+        raise ValueError(f"{name} must lie strictly between {low} and {high}, got {result}")
+    return result
+
+
+def as_count(value: Any, name: str, minimum: int = 0) -> int:
+    """Return ``value`` (an int, not a bool nor a float) as an int of at least ``minimum``.
+
+    A float is refused even when it holds a whole number: a count that arrives
+    as ``2.0`` was usually computed, not meant.
+
+    >>> as_count(3, "recovery_budget")
+    3
+    >>> as_count(0, "max_active", minimum=1)
+    Traceback (most recent call last):
+        ...
+    ValueError: max_active must be an int of at least 1, got 0
+    """
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
+        raise TypeError(f"{name} must be an int, got {_kind(value)}")
+    if value < minimum:
+        raise ValueError(f"{name} must be an int of at least {minimum}, got {value}")
+    return int(value)
 
 
 def as_id_array(value: Any, name: str, length: int | None = None) -> NDArray[np.int64]:

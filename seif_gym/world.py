@@ -18,6 +18,7 @@ from seif_gym.slam._kernels import _wrap_float
 from seif_gym.slam.models import RangeBearingSensor, VelocityMotionModel, _visible_measurements, wrap_angle
 from seif_gym.slam.noise_models import PerSecondVelocityMotionModel
 from seif_gym.type_aliases import FloatArray
+from seif_gym.validation import as_count
 
 __all__ = ["LAYOUTS", "WorldConfig", "World", "BatchedWorld", "make_landmarks"]
 
@@ -361,14 +362,8 @@ class BatchedWorld:
 
     def __init__(self, num_worlds: int, config: WorldConfig, motion: VelocityMotionModel, sensor: RangeBearingSensor,
                  buffer: int = 4096) -> None:  # fmt: skip
-        if isinstance(num_worlds, bool) or not isinstance(num_worlds, (int, np.integer)) or num_worlds < 1:
-            raise ValueError(f"num_worlds must be a positive int, got {num_worlds!r}")
-        if (
-            isinstance(buffer, bool)
-            or not isinstance(buffer, (int, np.integer))
-            or buffer < 2 * config.num_landmarks + 3
-        ):
-            raise ValueError(f"buffer must be an int of at least {2 * config.num_landmarks + 3}, got {buffer!r}")
+        as_count(num_worlds, "num_worlds", minimum=1)
+        as_count(buffer, "buffer", minimum=2 * config.num_landmarks + 3)
         self.config, self.motion, self.sensor = config, motion, sensor
         n, m = int(num_worlds), config.num_landmarks
         self.num_worlds = n

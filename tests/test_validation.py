@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 import seif_gym.validation
-from seif_gym.validation import as_nonnegative_scalar, as_positive_scalar, as_real_scalar
+from seif_gym.validation import as_count, as_nonnegative_scalar, as_positive_scalar, as_real_scalar, as_scalar_between
 
 
 def test_module_doctests_pass():
@@ -90,3 +90,72 @@ def test_the_metrics_the_decoder_and_the_shaping_check_with_it():
         CoverageShaping(env, coef=-1.0)
     with pytest.raises(TypeError, match="gamma must be a real number, got bool"):
         CoverageShaping(env, gamma=True)
+
+
+@pytest.mark.parametrize("value", [0, 3, np.int32(2), np.int64(7)])
+def test_counts_come_back_as_ints(value):
+    result = as_count(value, "sweeps")
+    assert type(result) is int and result == int(value)
+
+
+@pytest.mark.parametrize(
+    ("value", "minimum", "error", "message"),
+    [
+        (2.0, 0, TypeError, "sweeps must be an int, got float"),
+        (True, 0, TypeError, "sweeps must be an int, got bool"),
+        (None, 0, TypeError, "sweeps must be an int"),
+        (np.array(2), 0, TypeError, "sweeps must be an int"),
+        (-1, 0, ValueError, "sweeps must be an int of at least 0, got -1"),
+        (1, 2, ValueError, "sweeps must be an int of at least 2, got 1"),
+    ],
+)
+def test_bad_counts_raise_naming_the_argument(value, minimum, error, message):
+    with pytest.raises(error, match=message):
+        as_count(value, "sweeps", minimum=minimum)
+
+
+def test_scalars_between_exclude_both_ends():
+    assert as_scalar_between(np.float32(0.5), "split_weight", 0.0, 1.0) == 0.5
+    for value in (0.0, 1.0, -0.1, 1.1):
+        with pytest.raises(ValueError, match="split_weight must lie strictly between 0.0 and 1.0"):
+            as_scalar_between(value, "split_weight", 0.0, 1.0)
+    with pytest.raises(TypeError, match="split_weight must be a real number"):
+        as_scalar_between("half", "split_weight", 0.0, 1.0)
+    with pytest.raises(ValueError, match="split_weight must be finite"):
+        as_scalar_between(float("nan"), "split_weight", 0.0, 1.0)
+
+
+def test_the_filters_and_their_helpers_check_with_it():
+    from seif_gym.slam import ESEIF, SEIF, Associator
+    from seif_gym.slam.batched import BatchedSEIF
+    from seif_gym.slam.marginals import breadth_first_nodes
+    from seif_gym.slam.models import RangeBearingSensor, VelocityMotionModel
+    from seif_gym.slam.scenarios import FIDELITY_SCENARIOS, make_loop_run
+    from seif_gym.slam.simulation import loop_controls, ring_landmarks
+    from seif_gym.world import BatchedWorld, WorldConfig
+
+    motion, sensor, start = VelocityMotionModel(), RangeBearingSensor(), [0.0, 0.0, 0.0]
+    cases = [
+        (lambda: SEIF(motion, sensor, start, max_active=0), ValueError, "max_active must be an int of at least 1"),
+        (lambda: SEIF(motion, sensor, start, max_active=4.0), TypeError, "max_active must be an int"),
+        (lambda: SEIF(motion, sensor, start, recovery_budget=-1), ValueError, "recovery_budget must be an int"),
+        (lambda: SEIF(motion, sensor, start, recovery_landmarks=True), TypeError, "recovery_landmarks must be an int"),
+        (lambda: SEIF(motion, sensor, start, recovery_relaxation=2.0), ValueError, "recovery_relaxation must lie"),
+        (lambda: SEIF(motion, sensor, start, recovery_tolerance=-1e-3), ValueError, "recovery_tolerance must be non-"),
+        (lambda: ESEIF(motion, sensor, start, split_weight=1), ValueError, "split_weight must lie strictly"),
+        (lambda: ESEIF(motion, sensor, start, relocalization_landmarks=1), ValueError, "relocalization_landmarks"),
+        (lambda: SEIF(motion, sensor, start).refine_mean(sweeps=1.5), TypeError, "sweeps must be an int"),
+        (lambda: BatchedSEIF(0, 10, motion, sensor), ValueError, "num_filters must be an int of at least 1"),
+        (lambda: BatchedSEIF(2, 10, motion, sensor, max_landmark_id=-1), ValueError, "max_landmark_id must be"),
+        (lambda: Associator(merge_every=0), ValueError, "merge_every must be an int of at least 1"),
+        (lambda: loop_controls(10.0, 0.1, 5.0), TypeError, "steps must be an int"),
+        (lambda: ring_landmarks(0, 1.0, 2.0, np.random.default_rng(0)), ValueError, "n must be an int of at least 1"),
+        (lambda: make_loop_run(FIDELITY_SCENARIOS["circle"], -1), ValueError, "seed must be an int of at least 0"),
+        (lambda: BatchedWorld(1, WorldConfig(), motion, sensor, buffer=3), ValueError, "buffer must be an int of"),
+    ]
+    for build, error, message in cases:
+        with pytest.raises(error, match=message):
+            build()
+    filt = SEIF(motion, sensor, start)
+    with pytest.raises(TypeError, match="max_landmarks must be an int"):
+        breadth_first_nodes(filt._store, np.empty(0, dtype=np.int64), np.empty(0, dtype=np.int64), 2.0)

@@ -146,7 +146,7 @@ from numpy.typing import ArrayLike
 from seif_gym.slam._kernels import range_bearing_jacobian
 from seif_gym.slam.marginals import breadth_first_joint_covariance, supports_breadth_first
 from seif_gym.type_aliases import FloatArray, IntArray
-from seif_gym.validation import as_finite_array, as_positive_scalar
+from seif_gym.validation import as_count, as_finite_array, as_positive_scalar
 
 if TYPE_CHECKING:  # for annotations only
     from seif_gym.slam.base import SlamFilter
@@ -1107,8 +1107,7 @@ class Associator:
             ("merge_inliers", merge_inliers, 2),
             ("merge_margin", merge_margin, 0),
         ):
-            if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < low:
-                raise ValueError(f"{name} must be an int >= {low}, got {value!r}")
+            as_count(value, name, minimum=low)
         self.gate = float(gate)
         self.new_landmark = float(new_landmark)
         self.candidate_radius = float(candidate_radius)

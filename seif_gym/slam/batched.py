@@ -40,7 +40,7 @@ from seif_gym.slam.information import InformationStore
 from seif_gym.slam.models import RangeBearingSensor, VelocityMotionModel, wrap_angle
 from seif_gym.slam.seif import SEIF
 from seif_gym.type_aliases import BoolArray, FloatArray, IntArray
-from seif_gym.validation import as_finite_array, as_positive_scalar
+from seif_gym.validation import as_count, as_finite_array, as_positive_scalar
 
 __all__ = ["BatchedSEIF", "BatchedESEIF"]
 
@@ -99,16 +99,13 @@ class BatchedSEIF:
                  max_landmark_id: int | None = None, max_active: int | None = 8, recovery_landmarks: int = 8,
                  recovery_budget: int = 64, recovery_relaxation: float = 1.8, recovery_tolerance: float = 1e-4,
                  **filter_options: Any) -> None:  # fmt: skip
-        for name, value in (("num_filters", num_filters), ("capacity", capacity)):
-            if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
-                raise ValueError(f"{name} must be a positive int, got {value!r}")
+        as_count(num_filters, "num_filters", minimum=1)
+        as_count(capacity, "capacity", minimum=1)
         if not isinstance(motion, VelocityMotionModel):
             raise TypeError(f"motion must be a VelocityMotionModel, got {type(motion).__name__}")
         if not isinstance(sensor, RangeBearingSensor):
             raise TypeError(f"sensor must be a RangeBearingSensor, got {type(sensor).__name__}")
-        max_id = capacity - 1 if max_landmark_id is None else max_landmark_id
-        if isinstance(max_id, bool) or not isinstance(max_id, (int, np.integer)) or max_id < 0:
-            raise ValueError(f"max_landmark_id must be a non-negative int, got {max_landmark_id!r}")
+        max_id = capacity - 1 if max_landmark_id is None else as_count(max_landmark_id, "max_landmark_id")
         # the filter checks its options; the batch takes them from a filter built with them
         reference = self.FILTER(motion, sensor, np.zeros(3), max_active=max_active,
                                 recovery_landmarks=recovery_landmarks, recovery_budget=recovery_budget,

@@ -59,6 +59,7 @@ from seif_gym.slam._kernels import (
 from seif_gym.slam.information import InformationStore
 from seif_gym.slam.seif import SEIF, CompiledSEIFBackend, ReferenceSEIFBackend, SEIFBackend
 from seif_gym.type_aliases import FloatArray, IntArray
+from seif_gym.validation import as_count, as_scalar_between
 
 __all__ = [
     "ESEIF",
@@ -309,18 +310,10 @@ class ESEIF(SEIF):
             raise ValueError(
                 f"max_active must be at least 2 or None (relocalization needs two landmarks), got {max_active}"
             )
-        count = options["relocalization_landmarks"]
-        if isinstance(count, bool) or not isinstance(count, (int, np.integer)):
-            raise TypeError(f"relocalization_landmarks must be an int, got {type(count).__name__}")
-        if count < 2:
-            raise ValueError(f"relocalization_landmarks must be at least 2, got {count}")
+        count = as_count(options["relocalization_landmarks"], "relocalization_landmarks", minimum=2)
         if max_active is not None and count > max_active:
             raise ValueError(f"relocalization_landmarks ({count}) must not exceed max_active ({max_active})")
-        weight = options["split_weight"]
-        if isinstance(weight, bool) or not isinstance(weight, (int, float, np.integer, np.floating)):
-            raise TypeError(f"split_weight must be a number, got {type(weight).__name__}")
-        if not 0.0 < weight < 1.0:
-            raise ValueError(f"split_weight must lie strictly between 0 and 1, got {weight!r}")
+        as_scalar_between(options["split_weight"], "split_weight", 0.0, 1.0)
 
     def _initialize(self, pose: FloatArray, pose_cov: FloatArray) -> None:
         super()._initialize(pose, pose_cov)

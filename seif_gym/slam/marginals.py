@@ -36,6 +36,7 @@ from numpy.typing import ArrayLike
 
 from seif_gym.slam import _kernels
 from seif_gym.type_aliases import FloatArray, IntArray
+from seif_gym.validation import as_count
 
 if TYPE_CHECKING:  # for annotations only
     from seif_gym.slam.information import InformationStore
@@ -62,8 +63,7 @@ def breadth_first_nodes(store: InformationStore, active: IntArray, targets: IntA
     ring each in turn; a ring is cut short when the block is full. Returns
     state orders, each once, at most ``max(max_landmarks, len(active ∪ targets))``.
     """
-    if isinstance(max_landmarks, bool) or not isinstance(max_landmarks, (int, np.integer)) or max_landmarks < 0:
-        raise ValueError(f"max_landmarks must be a non-negative int, got {max_landmarks!r}")
+    as_count(max_landmarks, "max_landmarks")
     chosen: dict[int, None] = dict.fromkeys(int(i) for i in np.concatenate([active, targets]).tolist())
     fronts = [deque(int(i) for i in active.tolist()), deque(int(i) for i in targets.tolist())]
     index, count = store.neighbour_index, store.neighbour_count

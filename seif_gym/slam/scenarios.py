@@ -26,7 +26,7 @@ import numpy as np
 from seif_gym.slam.models import RangeBearingSensor, VelocityMotionModel
 from seif_gym.slam.simulation import SimulatedRun, simulate_run
 from seif_gym.type_aliases import FloatArray
-from seif_gym.validation import as_finite_array, as_nonnegative_scalar, as_positive_scalar
+from seif_gym.validation import as_count, as_finite_array, as_nonnegative_scalar, as_positive_scalar
 
 __all__ = ["LoopScenario", "FIDELITY_SCENARIOS", "loop_path_controls", "loop_landmarks", "make_loop_run"]
 
@@ -218,8 +218,7 @@ def make_loop_run(
     noise, so a seed gives the same run bit for bit.
     """
     _check_scenario(scenario)
-    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
-        raise ValueError(f"seed must be a non-negative int, got {seed!r}")
+    as_count(seed, "seed")
     rng = np.random.default_rng(int(seed))
     controls, start = loop_path_controls(scenario)
     landmarks = loop_landmarks(scenario, _path_points(scenario, controls, start), rng)

@@ -42,6 +42,7 @@ from seif_gym.slam.base import SlamFilter, SparseInformationForm
 from seif_gym.slam.information import InformationStore
 from seif_gym.slam.models import wrap_angle
 from seif_gym.type_aliases import FloatArray, IntArray
+from seif_gym.validation import as_count, as_nonnegative_scalar, as_scalar_between
 
 __all__ = [
     "SEIF",
@@ -757,26 +758,14 @@ class SEIF(SlamFilter, SparseInformationForm):
                                                   "reference": ReferenceSEIFBackend()}  # fmt: skip
 
     def _check_options(self, options: dict[str, Any]) -> None:
-        max_active = options["max_active"]
-        if max_active is not None:
-            if isinstance(max_active, bool) or not isinstance(max_active, (int, np.integer)):
-                raise TypeError(f"max_active must be a positive int or None, got {type(max_active).__name__}")
-            if max_active < 1:
-                raise ValueError(f"max_active must be a positive int or None, got {max_active}")
+        if options["max_active"] is not None:
+            as_count(options["max_active"], "max_active", minimum=1)
         if options["mean_recovery"] not in self.MEAN_RECOVERIES:
             raise ValueError(f"mean_recovery must be one of {self.MEAN_RECOVERIES}, got {options['mean_recovery']!r}")
-        for name in ("recovery_landmarks", "recovery_budget"):
-            count = options[name]
-            if isinstance(count, bool) or not isinstance(count, (int, np.integer)):
-                raise TypeError(f"{name} must be a non-negative int, got {type(count).__name__}")
-            if count < 0:
-                raise ValueError(f"{name} must be a non-negative int, got {count}")
-        for name, low, high in (("recovery_relaxation", 0.0, 2.0), ("recovery_tolerance", 0.0, np.inf)):
-            value = options[name]
-            if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
-                raise TypeError(f"{name} must be a number, got {type(value).__name__}")
-            if not (low < value < high or (name == "recovery_tolerance" and value == 0.0)):
-                raise ValueError(f"{name} must lie in ({low}, {high}), got {value!r}")
+        as_count(options["recovery_landmarks"], "recovery_landmarks")
+        as_count(options["recovery_budget"], "recovery_budget")
+        as_scalar_between(options["recovery_relaxation"], "recovery_relaxation", 0.0, 2.0)  # over-relaxation's range
+        as_nonnegative_scalar(options["recovery_tolerance"], "recovery_tolerance")
         if options["implementation"] not in ("compiled", "reference"):
             raise ValueError(f"implementation must be 'compiled' or 'reference', got {options['implementation']!r}")
 
@@ -1028,8 +1017,7 @@ class SEIF(SlamFilter, SparseInformationForm):
         Costs O(n) per sweep; repeated, amortized recovery converges to
         :meth:`exact_mean` (the tests check it).
         """
-        if isinstance(sweeps, bool) or not isinstance(sweeps, (int, np.integer)) or sweeps < 0:
-            raise ValueError(f"sweeps must be a non-negative int, got {sweeps!r}")
+        as_count(sweeps, "sweeps")
         everything = np.arange(self.num_landmarks, dtype=np.int64)
         store = self._store
         for _ in range(int(sweeps)):

@@ -39,7 +39,7 @@ from numpy.typing import ArrayLike, NDArray
 from seif_gym.metrics import pose_nees  # noqa: F401  (after the slam imports: metrics imports slam.models)
 from seif_gym.slam.models import wrap_angle
 from seif_gym.type_aliases import FloatArray, IntArray
-from seif_gym.validation import as_finite_array, as_finite_vector, as_positive_scalar
+from seif_gym.validation import as_count, as_finite_array, as_finite_vector, as_positive_scalar
 
 if TYPE_CHECKING:  # imported for annotations only: no import cycle at run time
     from seif_gym.slam.base import SlamFilter
@@ -217,8 +217,7 @@ def loop_controls(
         ``(v, omega)`` per step. Start the robot at :func:`loop_start_pose` to
         drive the circle centred on the origin.
     """
-    if isinstance(steps, bool) or not isinstance(steps, (int, np.integer)) or steps <= 0:
-        raise ValueError(f"steps must be a positive integer, got {steps!r}")
+    as_count(steps, "steps", minimum=1)
     dt = as_positive_scalar(dt, "dt")
     radius = as_positive_scalar(radius, "radius")
     if speed is not None and turns is not None:
@@ -260,8 +259,7 @@ def ring_landmarks(n: int, radius_inner: float, radius_outer: float, rng: np.ran
     -------
     ndarray, shape (n, 2)
     """
-    if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n <= 0:
-        raise ValueError(f"n must be a positive integer, got {n!r}")
+    as_count(n, "n", minimum=1)
     radius_outer = as_positive_scalar(radius_outer, "radius_outer")
     radius_inner = float(radius_inner)
     if not 0.0 <= radius_inner <= radius_outer:

@@ -56,6 +56,7 @@ from agents.memories import policy_view
 from agents.parallel import Executor
 from agents.parallel import add_arguments as add_executor_arguments
 from agents.parallel import from_arguments as executor_from_arguments
+from seif_gym.validation import as_count
 
 __all__ = [
     "DECLARED_HELD_OUT_EPISODES",
@@ -349,8 +350,7 @@ def run_benchmark(variants: Sequence[str], agents: Sequence[str], episodes: int 
     """
     if episodes is not None and int(episodes) < 1:
         raise ValueError(f"episodes must be positive, got {episodes!r}")
-    if isinstance(jobs, bool) or not isinstance(jobs, int) or jobs < 1:
-        raise ValueError(f"jobs must be a positive int, got {jobs!r}")
+    as_count(jobs, "jobs", minimum=1)
     if executor is not None and not isinstance(executor, Executor):
         raise TypeError(f"executor must be an agents.parallel.Executor, got {type(executor).__name__}")
     if executor is not None and executor.kind != "serial" and jobs > 1:

@@ -37,7 +37,7 @@ import numpy as np
 
 from agents.baselines import Geometry
 from agents.entries import with_entry
-from seif_gym.validation import as_positive_scalar
+from seif_gym.validation import as_count, as_positive_scalar
 
 __all__ = ["UNSWEPT", "CoverageMemory", "CoverageMemoryObservation", "uses_coverage_memory"]
 
@@ -79,8 +79,7 @@ class CoverageMemory:
         if not isinstance(geometry, Geometry):
             raise TypeError(f"geometry must be a Geometry, got {type(geometry).__name__}")
         as_positive_scalar(cell, "cell")
-        if isinstance(sectors, bool) or not isinstance(sectors, (int, np.integer)) or sectors < 1:
-            raise ValueError(f"sectors must be a positive integer, got {sectors!r}")
+        as_count(sectors, "sectors", minimum=1)
         if near is not None:
             as_positive_scalar(near, "near")
         self.near = 2.0 * geometry.sensor_range if near is None else float(near)

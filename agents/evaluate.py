@@ -120,6 +120,7 @@ from agents.parallel import add_arguments as add_executor_arguments
 from agents.parallel import from_arguments as executor_from_arguments
 from seif_gym import LATEST_ID
 from seif_gym.progress import Progress
+from seif_gym.validation import as_count
 
 if TYPE_CHECKING:
     from stable_baselines3.common.base_class import BaseAlgorithm
@@ -597,8 +598,7 @@ def paired_difference(values: Sequence[float], reference: Sequence[float], confi
         raise ValueError(f"values and reference must be one number per seed, same length, got {a.shape} and {b.shape}")
     if not 0.0 < confidence < 1.0:
         raise ValueError(f"confidence must lie in (0, 1), got {confidence!r}")
-    if isinstance(bootstrap, bool) or not isinstance(bootstrap, (int, np.integer)) or bootstrap < 0:
-        raise ValueError(f"bootstrap must be a non-negative int, got {bootstrap!r}")
+    as_count(bootstrap, "bootstrap")
     d = a - b
     n = int(d.size)
     mean = float(d.mean())

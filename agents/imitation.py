@@ -42,6 +42,7 @@ from numpy.typing import ArrayLike
 
 from agents.baselines import BASELINES, Agent, make_agent
 from agents.oracle import CoverageOracle
+from seif_gym.validation import as_count
 
 __all__ = [
     "TEACHERS",
@@ -258,9 +259,7 @@ def round_seeds(seeds: Sequence[int], dagger_rounds: int) -> list[np.ndarray]:
     >>> [batch.tolist() for batch in round_seeds([1, 2, 3, 4, 5], dagger_rounds=1)]
     [[1, 2, 3], [4, 5]]
     """
-    if isinstance(dagger_rounds, bool) or not isinstance(dagger_rounds, (int, np.integer)) or dagger_rounds < 0:
-        raise ValueError(f"dagger_rounds must be a non-negative integer, got {dagger_rounds!r}")
-    rounds = int(dagger_rounds) + 1
+    rounds = as_count(dagger_rounds, "dagger_rounds") + 1
     if len(seeds) < rounds:
         raise ValueError(f"seeds: need at least {rounds} (one per round), got {len(seeds)}")
     return np.array_split(np.asarray([int(s) for s in seeds]), rounds)

@@ -27,6 +27,8 @@ import numpy as np
 from gymnasium.vector import AutoresetMode
 from stable_baselines3.common.vec_env.base_vec_env import VecEnv, VecEnvIndices, VecEnvObs, VecEnvStepReturn
 
+from seif_gym.validation import as_count
+
 __all__ = ["NativeVecEnv"]
 
 
@@ -48,8 +50,7 @@ class NativeVecEnv(VecEnv):
 
     def __init__(self, env_id: str, num_envs: int, seed: int | None = None,
                  env_kwargs: dict[str, Any] | None = None) -> None:  # fmt: skip
-        if isinstance(num_envs, bool) or not isinstance(num_envs, (int, np.integer)) or num_envs < 1:
-            raise ValueError(f"num_envs must be a positive int, got {num_envs!r}")
+        as_count(num_envs, "num_envs", minimum=1)
         self.venv = gym.make_vec(env_id, num_envs=int(num_envs), autoreset_mode=AutoresetMode.SAME_STEP,
                                  **(env_kwargs or {}))  # fmt: skip
         super().__init__(int(num_envs), self.venv.single_observation_space, self.venv.single_action_space)

@@ -60,6 +60,7 @@ from agents.evaluate import PAIRED_METRIC, evaluate_agents, signed, write_output
 from agents.parallel import Executor
 from agents.parallel import add_arguments as add_executor_arguments
 from agents.parallel import from_arguments as executor_from_arguments
+from seif_gym.validation import as_count
 
 __all__ = [
     "Candidate",
@@ -130,8 +131,7 @@ def candidates(run: str | Path) -> list[Candidate]:
 def _check_seeds(seed: int, episodes: int) -> None:
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)):
         raise TypeError(f"seed must be an int, got {type(seed).__name__}")
-    if isinstance(episodes, bool) or not isinstance(episodes, (int, np.integer)) or episodes < 1:
-        raise ValueError(f"episodes must be a positive int, got {episodes!r}")
+    as_count(episodes, "episodes", minimum=1)
     if seed < 0:
         raise ValueError(f"seed must be >= 0, got {seed}")
     if seed < HELD_OUT_SEEDS.stop and seed + episodes > HELD_OUT_SEEDS.start:

@@ -40,6 +40,7 @@ import gymnasium as gym
 import numpy as np
 
 from agents.entries import with_entry
+from seif_gym.validation import as_count
 
 __all__ = ["TIME_LEFT", "TimeLeftClock", "TimeLeftObservation", "episode_limit", "uses_time_left"]
 
@@ -128,9 +129,7 @@ class TimeLeftClock:
     """
 
     def __init__(self, limit: int) -> None:
-        if isinstance(limit, bool) or not isinstance(limit, (int, np.integer)) or limit < 1:
-            raise ValueError(f"limit must be a positive integer, got {limit!r}")
-        self.limit = int(limit)
+        self.limit = as_count(limit, "limit", minimum=1)
         self._steps = np.zeros(0, dtype=np.int64)
 
     def reset(self, index: int | None = None) -> None:

@@ -28,7 +28,7 @@ from seif_gym.slam._kernels import blanket_covariances, blanket_nodes, condition
 from seif_gym.slam.base import SlamFilter
 from seif_gym.slam.models import RangeBearingSensor
 from seif_gym.type_aliases import Float32Array, FloatArray, IntArray, UInt8Array
-from seif_gym.validation import as_positive_scalar
+from seif_gym.validation import as_count, as_positive_scalar
 
 __all__ = [
     "ObservationConfig", "BeliefEncoder", "ObservationDecoder", "BeliefRaster", "read_belief_map", "landmark_rows",
@@ -75,9 +75,7 @@ class ObservationConfig:
 
     def __post_init__(self) -> None:
         for name in ("nearest_landmarks", "map_size"):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
-                raise ValueError(f"{name} must be a positive int, got {value!r}")
+            as_count(getattr(self, name), name, minimum=1)
         for name in ("map_extent", "coverage_resolution", "std_scale"):
             value = getattr(self, name)
             if not isinstance(value, (int, float)) or not math.isfinite(value) or value <= 0:

@@ -126,12 +126,13 @@ def as_count(value: Any, name: str, minimum: int = 0) -> int:
     >>> as_count(0, "max_active", minimum=1)
     Traceback (most recent call last):
         ...
-    ValueError: max_active must be an int of at least 1, got 0
+    ValueError: max_active must be a positive int, got 0
     """
     if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
         raise TypeError(f"{name} must be an int, got {_kind(value)}")
     if value < minimum:
-        raise ValueError(f"{name} must be an int of at least {minimum}, got {value}")
+        wanted = {0: "a non-negative int", 1: "a positive int"}.get(minimum, f"an int of at least {minimum}")
+        raise ValueError(f"{name} must be {wanted}, got {value}")
     return int(value)
 
 

@@ -105,7 +105,8 @@ def test_counts_come_back_as_ints(value):
         (True, 0, TypeError, "sweeps must be an int, got bool"),
         (None, 0, TypeError, "sweeps must be an int"),
         (np.array(2), 0, TypeError, "sweeps must be an int"),
-        (-1, 0, ValueError, "sweeps must be an int of at least 0, got -1"),
+        (-1, 0, ValueError, "sweeps must be a non-negative int, got -1"),
+        (0, 1, ValueError, "sweeps must be a positive int, got 0"),
         (1, 2, ValueError, "sweeps must be an int of at least 2, got 1"),
     ],
 )
@@ -136,21 +137,25 @@ def test_the_filters_and_their_helpers_check_with_it():
 
     motion, sensor, start = VelocityMotionModel(), RangeBearingSensor(), [0.0, 0.0, 0.0]
     cases = [
-        (lambda: SEIF(motion, sensor, start, max_active=0), ValueError, "max_active must be an int of at least 1"),
+        (lambda: SEIF(motion, sensor, start, max_active=0), ValueError, "max_active must be a positive int"),
         (lambda: SEIF(motion, sensor, start, max_active=4.0), TypeError, "max_active must be an int"),
-        (lambda: SEIF(motion, sensor, start, recovery_budget=-1), ValueError, "recovery_budget must be an int"),
+        (
+            lambda: SEIF(motion, sensor, start, recovery_budget=-1),
+            ValueError,
+            "recovery_budget must be a non-negative int",
+        ),
         (lambda: SEIF(motion, sensor, start, recovery_landmarks=True), TypeError, "recovery_landmarks must be an int"),
         (lambda: SEIF(motion, sensor, start, recovery_relaxation=2.0), ValueError, "recovery_relaxation must lie"),
         (lambda: SEIF(motion, sensor, start, recovery_tolerance=-1e-3), ValueError, "recovery_tolerance must be non-"),
         (lambda: ESEIF(motion, sensor, start, split_weight=1), ValueError, "split_weight must lie strictly"),
         (lambda: ESEIF(motion, sensor, start, relocalization_landmarks=1), ValueError, "relocalization_landmarks"),
         (lambda: SEIF(motion, sensor, start).refine_mean(sweeps=1.5), TypeError, "sweeps must be an int"),
-        (lambda: BatchedSEIF(0, 10, motion, sensor), ValueError, "num_filters must be an int of at least 1"),
+        (lambda: BatchedSEIF(0, 10, motion, sensor), ValueError, "num_filters must be a positive int"),
         (lambda: BatchedSEIF(2, 10, motion, sensor, max_landmark_id=-1), ValueError, "max_landmark_id must be"),
-        (lambda: Associator(merge_every=0), ValueError, "merge_every must be an int of at least 1"),
+        (lambda: Associator(merge_every=0), ValueError, "merge_every must be a positive int"),
         (lambda: loop_controls(10.0, 0.1, 5.0), TypeError, "steps must be an int"),
-        (lambda: ring_landmarks(0, 1.0, 2.0, np.random.default_rng(0)), ValueError, "n must be an int of at least 1"),
-        (lambda: make_loop_run(FIDELITY_SCENARIOS["circle"], -1), ValueError, "seed must be an int of at least 0"),
+        (lambda: ring_landmarks(0, 1.0, 2.0, np.random.default_rng(0)), ValueError, "n must be a positive int"),
+        (lambda: make_loop_run(FIDELITY_SCENARIOS["circle"], -1), ValueError, "seed must be a non-negative int"),
         (lambda: BatchedWorld(1, WorldConfig(), motion, sensor, buffer=3), ValueError, "buffer must be an int of"),
     ]
     for build, error, message in cases:

@@ -52,6 +52,7 @@ from seif_gym.slam.models import VelocityMotionModel, wrap_angle
 from seif_gym.slam.seif import DENSE_MARGINALS_UP_TO, SEIF, exact_marginal_covariance
 from seif_gym.threads import check_thread_count, numba_threads
 from seif_gym.type_aliases import BoolArray, Float32Array, FloatArray, IntArray, UInt8Array
+from seif_gym.validation import as_count
 from seif_gym.world import BatchedWorld
 
 __all__ = ["SeifExploreVectorEnv"]
@@ -207,8 +208,7 @@ class SeifExploreVectorEnv(VectorEnv):
     def __init__(self, num_envs: int = 1, *, max_episode_steps: int | None = None,
                  autoreset_mode: AutoresetMode | str = AutoresetMode.NEXT_STEP, render_mode: str | None = None,
                  num_threads: int = 1, **kwargs: Any) -> None:  # fmt: skip
-        if isinstance(num_envs, bool) or not isinstance(num_envs, (int, np.integer)) or num_envs < 1:
-            raise ValueError(f"num_envs must be a positive int, got {num_envs!r}")
+        as_count(num_envs, "num_envs", minimum=1)
         if max_episode_steps is not None and (isinstance(max_episode_steps, bool) or
                                               not isinstance(max_episode_steps, (int, np.integer)) or
                                               max_episode_steps < 1):  # fmt: skip

@@ -348,8 +348,8 @@ def run_benchmark(variants: Sequence[str], agents: Sequence[str], episodes: int 
     a Ray cluster), which runs the variants one after another with each variant's episodes
     spread over all of its slots. Either gives the rows of one process.
     """
-    if episodes is not None and int(episodes) < 1:
-        raise ValueError(f"episodes must be positive, got {episodes!r}")
+    if episodes is not None:
+        as_count(episodes, "episodes", minimum=1)
     as_count(jobs, "jobs", minimum=1)
     if executor is not None and not isinstance(executor, Executor):
         raise TypeError(f"executor must be an agents.parallel.Executor, got {type(executor).__name__}")

@@ -50,7 +50,6 @@ from pathlib import Path
 from typing import Any
 
 import gymnasium as gym
-import numpy as np
 
 from agents import BASELINES
 from agents.benchmark import HELD_OUT_SEEDS, VALIDATION_EPISODES, VALIDATION_SEED
@@ -129,11 +128,8 @@ def candidates(run: str | Path) -> list[Candidate]:
 
 
 def _check_seeds(seed: int, episodes: int) -> None:
-    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)):
-        raise TypeError(f"seed must be an int, got {type(seed).__name__}")
+    as_count(seed, "seed")
     as_count(episodes, "episodes", minimum=1)
-    if seed < 0:
-        raise ValueError(f"seed must be >= 0, got {seed}")
     if seed < HELD_OUT_SEEDS.stop and seed + episodes > HELD_OUT_SEEDS.start:
         raise ValueError(
             f"seed: {seed}…{seed + episodes - 1} reaches into the held-out seeds {HELD_OUT_SEEDS.start}…"

@@ -76,10 +76,8 @@ class ObservationConfig:
     def __post_init__(self) -> None:
         for name in ("nearest_landmarks", "map_size"):
             as_count(getattr(self, name), name, minimum=1)
-        for name in ("map_extent", "coverage_resolution", "std_scale"):
-            value = getattr(self, name)
-            if not isinstance(value, (int, float)) or not math.isfinite(value) or value <= 0:
-                raise ValueError(f"{name} must be a positive number, got {value!r}")
+        for name in ("map_extent", "coverage_resolution", "std_scale"):  # kept as the checked float
+            object.__setattr__(self, name, as_positive_scalar(getattr(self, name), name))
 
 
 @njit(cache=True)
@@ -484,7 +482,7 @@ class ObservationDecoder:
         size = as_positive_scalar(self.arena_size, "arena_size")
         if not isinstance(self.config, ObservationConfig):
             raise TypeError(f"config must be an ObservationConfig, got {type(self.config).__name__}")
-        object.__setattr__(self, "arena_size", float(size))
+        object.__setattr__(self, "arena_size", size)
 
     @classmethod
     def from_env(cls, env: object) -> ObservationDecoder:

@@ -164,3 +164,26 @@ def test_the_filters_and_their_helpers_check_with_it():
     filt = SEIF(motion, sensor, start)
     with pytest.raises(TypeError, match="max_landmarks must be an int"):
         breadth_first_nodes(filt._store, np.empty(0, dtype=np.int64), np.empty(0, dtype=np.int64), 2.0)
+
+
+def test_the_observation_config_vector_env_select_and_benchmark_check_with_it(tmp_path):
+    from agents import benchmark
+    from agents.select import select_checkpoints
+    from seif_gym.envs.vector import SeifExploreVectorEnv
+    from seif_gym.observation import ObservationConfig
+
+    config = ObservationConfig(map_extent=np.float32(8.0), std_scale=2)
+    assert type(config.map_extent) is float and type(config.std_scale) is float and config.std_scale == 2.0
+    cases = [
+        (lambda: ObservationConfig(map_extent="wide"), TypeError, "map_extent must be a real number"),
+        (lambda: ObservationConfig(coverage_resolution=0.0), ValueError, "coverage_resolution must be positive"),
+        (lambda: ObservationConfig(map_size=2.0), TypeError, "map_size must be an int"),
+        (lambda: SeifExploreVectorEnv(2, max_episode_steps=0), ValueError, "max_episode_steps must be a positive int"),
+        (lambda: SeifExploreVectorEnv(2, max_episode_steps=10.0), TypeError, "max_episode_steps must be an int"),
+        (lambda: select_checkpoints([tmp_path], "SeifExplore-v1", {}, seed=1.5), TypeError, "seed must be an int"),
+        (lambda: benchmark.run_benchmark(["SeifExplore-v1"], ["random"], 1.5, 0, tmp_path), TypeError, "episodes"),
+    ]
+    for build, error, message in cases:
+        with pytest.raises(error, match=message):
+            build()
+    assert not list(tmp_path.iterdir())  # refused before anything was written

@@ -209,10 +209,8 @@ class SeifExploreVectorEnv(VectorEnv):
                  autoreset_mode: AutoresetMode | str = AutoresetMode.NEXT_STEP, render_mode: str | None = None,
                  num_threads: int = 1, **kwargs: Any) -> None:  # fmt: skip
         as_count(num_envs, "num_envs", minimum=1)
-        if max_episode_steps is not None and (isinstance(max_episode_steps, bool) or
-                                              not isinstance(max_episode_steps, (int, np.integer)) or
-                                              max_episode_steps < 1):  # fmt: skip
-            raise ValueError(f"max_episode_steps must be a positive int or None, got {max_episode_steps!r}")
+        if max_episode_steps is not None:
+            as_count(max_episode_steps, "max_episode_steps", minimum=1)
         try:
             mode = AutoresetMode(autoreset_mode)
         except ValueError as error:

@@ -519,6 +519,15 @@ class FrontierAgent(Agent):
         memory.last_speed = float(action[0])
         return action
 
+    def executed(self, action: np.ndarray, index: int = 0) -> None:
+        """Tell the agent that env ``index`` executed ``action`` (2,), not the action it chose.
+
+        For a controller built on this agent (a residual policy,
+        :mod:`agents.residual`): the bump check of the next step compares the
+        motion with the speed actually commanded.
+        """
+        self._remember(self._state(index), np.asarray(action))
+
     def frontier_target(self, observation: Observation) -> tuple[float, float] | None:
         """``(forward, left)`` metres of the chosen unswept cell, or ``None`` if there is none."""
         belief = read_belief_map(observation)

@@ -179,9 +179,12 @@ class _NormalizedPolicy:
         if self.vec_normalize is not None:
             # the training statistics as they are now (normalize_obs neither updates nor needs a batch)
             observation = self.vec_normalize.normalize_obs(observation)
-        return self.model.predict(
+        action, state = self.model.predict(
             observation, state=state, episode_start=episode_start, deterministic=self.deterministic
         )
+        if self.memories is not None:
+            action = self.memories.act(action)  # a residual's sum with the planner's action
+        return action, state
 
 
 class MapErrorEvalCallback(BaseCallback):

@@ -118,6 +118,7 @@ from agents.memories import PolicyMemories, has_policy_entries, policy_memories,
 from agents.parallel import Executor, chunks
 from agents.parallel import add_arguments as add_executor_arguments
 from agents.parallel import from_arguments as executor_from_arguments
+from agents.residual import uses_planner_action
 from seif_gym import LATEST_ID
 from seif_gym.progress import Progress
 from seif_gym.validation import as_count
@@ -303,6 +304,8 @@ class SB3Agent(Agent):
         space = self.model.observation_space
         self.memories: PolicyMemories | None = None
         if has_policy_entries(space):
+            if env is None and uses_planner_action(space):
+                raise ValueError(f"env: {self.path} is a residual on the planner, which plans with the env it acts in")
             if env is not None:
                 self.memories = policy_memories(space, env)
             else:
@@ -339,6 +342,8 @@ class SB3Agent(Agent):
         action, state = self.model.predict(
             model_input, state=state, episode_start=episode_start, deterministic=deterministic
         )
+        if self.memories is not None:
+            action = self.memories.act(action)  # a residual's sum with the planner's action
         return np.asarray(action, dtype=np.float32), state
 
     def _act(self, observation: Mapping[str, np.ndarray], index: int) -> np.ndarray:

@@ -2,8 +2,10 @@
 
 Some policies were trained with entries that are not the env's: the
 budget's clock (:mod:`agents.time_feature`, :data:`~agents.time_feature.TIME_LEFT`)
-and the memory of the swept arena (:mod:`agents.coverage_memory`,
-:data:`~agents.coverage_memory.UNSWEPT`). Training adds them with a wrapper
+the memory of the swept arena (:mod:`agents.coverage_memory`,
+:data:`~agents.coverage_memory.UNSWEPT`) and the planner's action of a
+residual policy (:mod:`agents.residual`, :data:`~agents.residual.PLANNER_ACTION`,
+whose :meth:`PolicyMemories.act` turns the policy's action into the executed one). Training adds them with a wrapper
 (the config's ``env_wrapper``); on the plain env the agent computes the same
 entries itself from what it observes. The policy's observation space says
 which it needs: :func:`policy_memories` builds the agent's side,
@@ -33,6 +35,7 @@ import numpy as np
 
 from agents.baselines import Geometry
 from agents.coverage_memory import CoverageMemory, CoverageMemoryObservation, uses_coverage_memory
+from agents.residual import PlannerResidual, PlannerResidualAction, uses_planner_action
 from agents.time_feature import TimeLeftClock, TimeLeftObservation, episode_limit, uses_time_left
 
 __all__ = ["PolicyMemories", "has_policy_entries", "policy_memories", "policy_view"]
@@ -70,6 +73,13 @@ class PolicyMemories:
             result = memory.observe(result, episode_start)
         return result
 
+    def act(self, action: Any) -> np.ndarray:
+        """The action the env executes for the policy's ``action`` (a residual's sum; else ``action``)."""
+        for memory in self.memories:
+            if isinstance(memory, PlannerResidual):
+                return memory.act(action)
+        return np.asarray(action)
+
 
 #: Each policy-side entry: whether a policy's space holds it, the agent's side built from an env of
 #: the task, and the training wrapper that adds it. The memory checks everything the clock checks
@@ -77,6 +87,8 @@ class PolicyMemories:
 _ENTRIES: tuple[tuple[Callable[[Any], bool], Callable[[Any], _Memory], Callable[[gym.Env], gym.Env]], ...] = (
     (uses_coverage_memory, lambda env: CoverageMemory(Geometry.from_env(env)), CoverageMemoryObservation),
     (uses_time_left, lambda env: TimeLeftClock(episode_limit(env)), TimeLeftObservation),
+    # last, as in training (outermost): the planner sees the observation the inner entries made
+    (uses_planner_action, PlannerResidual, PlannerResidualAction),
 )
 
 
@@ -93,7 +105,9 @@ def policy_memories(observation_space: Any, env: Any) -> PolicyMemories | None:
     observation_space : gymnasium.spaces.Space
         The policy's observation space.
     env : gymnasium.Env
-        An env of the task (its time limit and geometry are read, never its world).
+        An env of the task (its time limit and geometry are read, never its
+        world); for a residual on the planner (:mod:`agents.residual`) the
+        env the agent acts in, whose filter the planner plans with.
     """
     memories = [build(env) for holds, build, _ in _ENTRIES if holds(observation_space)]
     return PolicyMemories(memories) if memories else None

@@ -396,3 +396,46 @@ def test_marginal_covariances_are_exact(busy_seif, monkeypatch, dense_up_to):
     landmark = int(busy_seif.landmark_ids[5])
     rows = slice(3 + 2 * 5, 5 + 2 * 5)
     np.testing.assert_allclose(busy_seif.landmark_covariance(landmark), inverse[rows, rows], rtol=1e-9, atol=1e-12)
+
+
+def _held(obj, seen: set | None = None) -> object:
+    """Every array and plain value ``obj`` holds, recursively, as comparable values (the models left out)."""
+    seen = set() if seen is None else seen
+    if isinstance(obj, np.ndarray):
+        return (obj.dtype.str, obj.shape, obj.tobytes())
+    if isinstance(obj, (int, float, bool, str, type(None), np.generic)):
+        return obj
+    if isinstance(obj, dict):
+        return {key: _held(value, seen) for key, value in obj.items()}
+    if isinstance(obj, (tuple, list)):
+        return tuple(_held(value, seen) for value in obj)
+    if not hasattr(obj, "__dict__") or id(obj) in seen:
+        return type(obj).__name__
+    seen.add(id(obj))
+    return {name: _held(value, seen) for name, value in vars(obj).items() if name not in ("motion", "sensor")}
+
+
+@pytest.mark.parametrize("name", ["ekf", "eif", "seif", "eseif"])
+def test_a_deep_copy_runs_on_as_the_original_and_apart_from_it(ring_loop_run, name):
+    """``SlamFilter.__deepcopy__`` (the planner's copies): the same filter, sharing no state with the original."""
+    import copy
+
+    from seif_gym.slam import EIF, EKF, ESEIF, SEIF
+
+    motion, sensor, run = ring_loop_run
+    make = {"ekf": EKF, "eif": EIF, "seif": SEIF, "eseif": ESEIF}[name]
+    original = feed(make(motion, sensor, run.initial_pose), run, 150)
+    before = _held(original)
+    copied = copy.deepcopy(original)
+    assert _held(copied) == before and copied._id_to_index is not original._id_to_index
+    # the copy runs on (closing the loop, mapping new landmarks) and the original is left as it was
+    for t in range(150, run.steps):
+        copied.predict(run.controls[t], run.dt)
+        copied.update(run.ranges[t], run.bearings[t], run.ids[t])
+    assert copied.num_landmarks > original.num_landmarks
+    assert _held(original) == before
+    # the original, run on the same way, ends where the copy did, bit for bit
+    for t in range(150, run.steps):
+        original.predict(run.controls[t], run.dt)
+        original.update(run.ranges[t], run.bearings[t], run.ids[t])
+    assert _held(original) == _held(copied)

@@ -9,6 +9,7 @@ estimation itself in ``_predict`` and ``_update``.
 
 from __future__ import annotations
 
+import copy
 from abc import ABC, abstractmethod
 from typing import Any, ClassVar
 
@@ -481,6 +482,21 @@ class SlamFilter(ABC):
         if index is None:
             raise UnknownLandmarkError(f"landmark_id {landmark_id} is not in the map")
         return index
+
+    def __deepcopy__(self, memo: dict[int, Any]) -> SlamFilter:
+        """A deep copy, as ``copy.deepcopy`` makes it, in a fraction of the time.
+
+        The id → index map holds only ints, so a new dict of its items is its
+        deep copy; ``copy.deepcopy`` would walk its items one call at a time,
+        which was most of the cost of a copy of a 100-landmark map (the
+        ``info_gain`` planner copies the filter once per candidate arc). Every
+        other attribute is deep-copied as before.
+        """
+        copied = type(self).__new__(type(self))
+        memo[id(self)] = copied
+        for name, value in self.__dict__.items():
+            copied.__dict__[name] = dict(value) if name == "_id_to_index" else copy.deepcopy(value, memo)
+        return copied
 
     # -- read-only belief ----------------------------------------------------
     @property

@@ -36,7 +36,7 @@ import gymnasium as gym
 import numpy as np
 
 from agents.baselines import Geometry
-from agents.entries import with_entry
+from agents.entries import holds_entry, with_entry
 from seif_gym.validation import as_count, as_positive_scalar
 
 __all__ = ["UNSWEPT", "CoverageMemory", "CoverageMemoryObservation", "uses_coverage_memory"]
@@ -47,7 +47,7 @@ UNSWEPT = "unswept_sectors"
 
 def uses_coverage_memory(observation_space: Any) -> bool:
     """Whether ``observation_space`` (a policy's) holds the :data:`UNSWEPT` entry."""
-    return isinstance(observation_space, gym.spaces.Dict) and UNSWEPT in observation_space.spaces
+    return holds_entry(observation_space, UNSWEPT)
 
 
 class CoverageMemory:

@@ -1,14 +1,17 @@
-"""One entry added to a ``Dict`` observation space: the check the policy-side wrappers share.
+"""One entry added to a ``Dict`` observation space: the checks the policy-side wrappers share.
 
-:class:`agents.time_feature.TimeLeftObservation` and
-:class:`agents.coverage_memory.CoverageMemoryObservation` each add one entry
-that the env does not have (:mod:`agents.memories`).
+:class:`agents.time_feature.TimeLeftObservation`,
+:class:`agents.coverage_memory.CoverageMemoryObservation` and
+:class:`agents.residual.PlannerResidualAction` each add one entry that the
+env does not have (:mod:`agents.memories`).
 
 >>> import gymnasium as gym
 >>> import numpy as np
 >>> space = gym.spaces.Dict({"pose": gym.spaces.Box(-1.0, 1.0, (7,), np.float32)})
 >>> sorted(with_entry(space, "time_left", gym.spaces.Box(0.0, 1.0, (1,), np.float32)).spaces)
 ['pose', 'time_left']
+>>> holds_entry(space, "time_left"), holds_entry(space, "pose")
+(False, True)
 """
 
 from __future__ import annotations
@@ -17,7 +20,7 @@ from typing import Any
 
 import gymnasium as gym
 
-__all__ = ["with_entry"]
+__all__ = ["holds_entry", "with_entry"]
 
 
 def with_entry(space: Any, key: str, entry: gym.spaces.Space) -> gym.spaces.Dict:
@@ -35,3 +38,8 @@ def with_entry(space: Any, key: str, entry: gym.spaces.Space) -> gym.spaces.Dict
     if key in space.spaces:
         raise ValueError(f"env: the observation already has {key!r}")
     return gym.spaces.Dict({**space.spaces, key: entry})
+
+
+def holds_entry(space: Any, key: str) -> bool:
+    """Whether ``space`` (a policy's observation space) is a ``Dict`` holding ``key``."""
+    return isinstance(space, gym.spaces.Dict) and key in space.spaces

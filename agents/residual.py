@@ -47,7 +47,7 @@ import gymnasium as gym
 import numpy as np
 
 from agents.baselines import InfoGainAgent
-from agents.entries import with_entry
+from agents.entries import holds_entry, with_entry
 
 __all__ = ["PLANNER_ACTION", "PlannerResidual", "PlannerResidualAction", "uses_planner_action"]
 
@@ -57,7 +57,7 @@ PLANNER_ACTION = "planner_action"
 
 def uses_planner_action(observation_space: Any) -> bool:
     """Whether ``observation_space`` (a policy's) holds the :data:`PLANNER_ACTION` entry."""
-    return isinstance(observation_space, gym.spaces.Dict) and PLANNER_ACTION in observation_space.spaces
+    return holds_entry(observation_space, PLANNER_ACTION)
 
 
 class PlannerResidual:

@@ -39,7 +39,7 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
-from agents.entries import with_entry
+from agents.entries import holds_entry, with_entry
 from seif_gym.validation import as_count
 
 __all__ = ["TIME_LEFT", "TimeLeftClock", "TimeLeftObservation", "episode_limit", "uses_time_left"]
@@ -50,7 +50,7 @@ TIME_LEFT = "time_left"
 
 def uses_time_left(observation_space: Any) -> bool:
     """Whether ``observation_space`` (a policy's) holds the :data:`TIME_LEFT` entry."""
-    return isinstance(observation_space, gym.spaces.Dict) and TIME_LEFT in observation_space.spaces
+    return holds_entry(observation_space, TIME_LEFT)
 
 
 def episode_limit(env: Any) -> int:

@@ -1,13 +1,14 @@
 """The observation entries a policy computes on its own side, in one place.
 
 Some policies were trained with entries that are not the env's: the
-budget's clock (:mod:`agents.time_feature`, :data:`~agents.time_feature.TIME_LEFT`)
+budget's clock (:mod:`agents.time_feature`, :data:`~agents.time_feature.TIME_LEFT`),
 the memory of the swept arena (:mod:`agents.coverage_memory`,
 :data:`~agents.coverage_memory.UNSWEPT`) and the planner's action of a
-residual policy (:mod:`agents.residual`, :data:`~agents.residual.PLANNER_ACTION`,
-whose :meth:`PolicyMemories.act` turns the policy's action into the executed one). Training adds them with a wrapper
-(the config's ``env_wrapper``); on the plain env the agent computes the same
-entries itself from what it observes. The policy's observation space says
+residual policy (:mod:`agents.residual`, :data:`~agents.residual.PLANNER_ACTION`).
+Training adds them with a wrapper (the config's ``env_wrapper``); on the plain
+env the agent computes the same entries itself from what it observes, and
+:meth:`PolicyMemories.act` turns a residual policy's action into the one the
+env executes. The policy's observation space says
 which it needs: :func:`policy_memories` builds the agent's side,
 :func:`policy_view` wraps an env the way training did (for the spaces that
 ``VecNormalize`` and the leaderboard's fit check compare).

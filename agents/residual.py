@@ -89,7 +89,8 @@ class PlannerResidual:
 
     def observe(self, observation: Mapping[str, np.ndarray], episode_start: Any = None) -> dict[str, np.ndarray]:
         """``observation`` (single or batched) with :data:`PLANNER_ACTION` added: the planner's action for it."""
-        if PLANNER_ACTION in observation:
+        if PLANNER_ACTION in observation:  # a wrapped env's (its wrapper plans): act sums with that plan
+            self._plan = np.asarray(observation[PLANNER_ACTION], dtype=np.float32).copy()
             return dict(observation)
         plan, _ = self.planner.predict(observation, episode_start=episode_start, deterministic=True)
         self._plan = np.asarray(plan, dtype=np.float32)

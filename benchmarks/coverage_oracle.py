@@ -2,7 +2,8 @@
 
 Usage::
 
-    python benchmarks/coverage_oracle.py [--env SeifExploreClusteredBudget-v2 ...] [--episodes 100] [--seed 500000]
+    python benchmarks/coverage_oracle.py [--env SeifExploreClusteredBudget-v2 ...] [--episodes 100] [--seed 500000] \
+        [--env-kwargs '{"max_episode_steps": 500}']
 
 The *coverage oracle* (:mod:`agents.oracle`) reads what no agent may read (the true landmarks and
 the true pose, ``env.unwrapped.world``) and drives greedily to the unmapped
@@ -17,12 +18,15 @@ explorer could exist. It is a diagnostic for the benchmark's tasks
 
 Prints, per task, the oracle's mean final map error with its 95% Student-t
 interval and the landmarks it mapped, on the validation seeds by default.
+``--env-kwargs`` (a JSON object passed to ``gym.make`` with every task, as
+``agents.evaluate``'s) measures a task's variant before it is registered:
+a step budget, a weaker sensor.
 """
 
 from __future__ import annotations
 
 import argparse
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 import gymnasium as gym
@@ -30,12 +34,15 @@ import numpy as np
 
 import seif_gym  # noqa: F401  (registers the envs)
 from agents.benchmark import VALIDATION_SEED
+from agents.cli import json_object
 from agents.evaluate import mean_ci
 from agents.oracle import CoverageOracle
 
 
-def run_oracle(env_id: str, seeds: Sequence[int]) -> dict[str, Any]:
+def run_oracle(env_id: str, seeds: Sequence[int], env_kwargs: Mapping[str, Any] | None = None) -> dict[str, Any]:
     """The oracle's episodes on ``seeds`` of ``env_id``: final map errors (mean, interval) and landmarks mapped.
+
+    ``env_kwargs`` are passed to ``gym.make`` (for example ``{"max_episode_steps": 500}``).
 
     Raises
     ------
@@ -46,7 +53,9 @@ def run_oracle(env_id: str, seeds: Sequence[int]) -> dict[str, Any]:
     seeds = [int(seed) for seed in seeds]
     if not seeds:
         raise ValueError("seeds must hold at least one seed")
-    env = gym.make(env_id)
+    if env_kwargs is not None and not isinstance(env_kwargs, Mapping):
+        raise TypeError(f"env_kwargs must be a mapping, got {type(env_kwargs).__name__}")
+    env = gym.make(env_id, **dict(env_kwargs or {}))
     errors, mapped = [], []
     try:
         try:
@@ -72,14 +81,18 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--env", nargs="+", default=["SeifExploreClusteredBudget-v2"], help="registered env ids")
     parser.add_argument("--episodes", type=int, default=100, help="episodes per task (default %(default)s)")
     parser.add_argument("--seed", type=int, default=VALIDATION_SEED, help="first seed (default %(default)s)")
+    parser.add_argument(
+        "--env-kwargs", type=json_object, default="{}", help="JSON object of gym.make keyword arguments, every task"
+    )
     args = parser.parse_args(argv)
     if args.episodes < 2:
         parser.error(f"--episodes: at least 2 for an interval, got {args.episodes}")
-    print(f"coverage oracle, seeds {args.seed}..{args.seed + args.episodes - 1}")
+    made_with = f", gym.make(..., **{args.env_kwargs})" if args.env_kwargs else ""
+    print(f"coverage oracle, seeds {args.seed}..{args.seed + args.episodes - 1}{made_with}")
     print("| task | final map error (m), 95% interval | landmarks mapped |")
     print("|---|--:|--:|")
     for env_id in args.env:
-        result = run_oracle(env_id, range(args.seed, args.seed + args.episodes))
+        result = run_oracle(env_id, range(args.seed, args.seed + args.episodes), args.env_kwargs)
         stat = result["final_map_error"]
         print(f"| `{env_id}` | {stat['mean']:.3f} ± {stat['ci95_half_width']:.3f} | {result['landmarks_mapped']:.1f} |")
     return 0

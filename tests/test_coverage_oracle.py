@@ -65,6 +65,35 @@ def test_main_prints_a_row_per_task_and_checks_episodes(oracle, capsys):
     assert "--episodes" in capsys.readouterr().err
 
 
+def test_env_kwargs_make_the_variant_measured(oracle, capsys):
+    # a step budget passed through: the oracle's episodes end where an env made with it ends them
+    env = gym.make("SeifExploreClusteredBudget-v2", max_episode_steps=20)
+    agent, errors, mapped = CoverageOracle(env), [], []
+    for seed in (500000, 500001):
+        observation, _ = env.reset(seed=seed)
+        steps, terminated, truncated = 0, False, False
+        while not (terminated or truncated):
+            observation, _, terminated, truncated, info = env.step(agent.predict(observation)[0])
+            steps += 1
+        assert steps == 20 and truncated
+        errors.append(info["map_error"])
+        mapped.append(info["landmarks_mapped"])
+    env.close()
+    result = oracle.run_oracle("SeifExploreClusteredBudget-v2", [500000, 500001], {"max_episode_steps": 20})
+    assert result["final_map_error"]["mean"] == pytest.approx(np.mean(errors), abs=0.0)
+    assert result["landmarks_mapped"] == np.mean(mapped)
+    assert result["landmarks_mapped"] < oracle.run_oracle("SeifExploreClusteredBudget-v2", [500000, 500001])[
+        "landmarks_mapped"]  # fmt: skip
+    assert oracle.main(["--episodes", "2", "--seed", "500000", "--env-kwargs", '{"max_episode_steps": 20}']) == 0
+    out = capsys.readouterr().out
+    assert "max_episode_steps" in out and f"| {result['landmarks_mapped']:.1f} |" in out
+    with pytest.raises(TypeError, match="env_kwargs must be a mapping"):
+        oracle.run_oracle("SeifExploreClusteredBudget-v2", [500000], [("max_episode_steps", 20)])
+    with pytest.raises(SystemExit):
+        oracle.main(["--env-kwargs", "[1]"])
+    assert "--env-kwargs" in capsys.readouterr().err
+
+
 def test_run_oracle_refuses_what_it_cannot_measure(oracle):
     with pytest.raises(ValueError, match="seeds"):
         oracle.run_oracle("SeifExploreClusteredBudget-v2", [])

@@ -80,7 +80,7 @@ def test_env_kwargs_make_the_variant_measured(oracle, capsys):
         mapped.append(info["landmarks_mapped"])
     env.close()
     result = oracle.run_oracle("SeifExploreClusteredBudget-v2", [500000, 500001], {"max_episode_steps": 20})
-    assert result["final_map_error"]["mean"] == pytest.approx(np.mean(errors), abs=0.0)
+    assert result["final_map_error"]["mean"] == float(np.mean(errors))  # the same episodes, to the bit
     assert result["landmarks_mapped"] == np.mean(mapped)
     assert result["landmarks_mapped"] < oracle.run_oracle("SeifExploreClusteredBudget-v2", [500000, 500001])[
         "landmarks_mapped"]  # fmt: skip

@@ -43,7 +43,6 @@ import json
 import sys
 import time
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -51,178 +50,34 @@ import gymnasium as gym
 
 import seif_gym
 from agents import BASELINES
-from agents.evaluate import evaluate_agents, sb3_algorithm, write_outputs
+from agents.evaluate import evaluate_agents, write_outputs
+from agents.loading import SHIPPED_POLICIES, ShippedPolicy
 from agents.memories import policy_view
 from agents.parallel import Executor
 from agents.parallel import add_arguments as add_executor_arguments
 from agents.parallel import from_arguments as executor_from_arguments
+from agents.protocol import (
+    HELD_OUT_EPISODES,
+    HELD_OUT_SEED,
+    SHORT_TASK_HELD_OUT_EPISODES,
+    SHORT_TASK_STEPS,
+    held_out_episodes,
+)
+from agents.sb3_agent import sb3_algorithm
 from seif_gym.validation import as_count
 
 __all__ = [
-    "DECLARED_HELD_OUT_EPISODES",
-    "LONG_TASK_DECLARED_HELD_OUT_EPISODES",
-    "HELD_OUT_EPISODES",
-    "HELD_OUT_SEED",
-    "HELD_OUT_SEEDS",
-    "SHORT_TASK_HELD_OUT_EPISODES",
-    "SHORT_TASK_STEPS",
-    "VALIDATION_EPISODES",
-    "VALIDATION_SEED",
     "LEADERBOARD_COLUMNS",
-    "SHIPPED_POLICIES",
-    "ShippedPolicy",
+    "EXPLORERS",
     "benchmark_variant",
     "default_variants",
-    "declared_held_out_episodes",
-    "held_out_episodes",
     "main",
     "policy_fits",
     "run_benchmark",
 ]
 
-#: First held-out seed of the protocol (reporting only).
-HELD_OUT_SEED = 1_000_000
-#: First validation seed of the protocol (checkpoint and hyperparameter selection).
-VALIDATION_SEED = 500_000
-#: Episodes of each split: held-out ``HELD_OUT_SEED`` … ``+ 99`` (on the tasks longer than
-#: :data:`SHORT_TASK_STEPS`), validation ``VALIDATION_SEED`` … ``+ 99``.
-HELD_OUT_EPISODES = VALIDATION_EPISODES = 100
-#: Tasks of at most this many steps (the budgets) are *short*: their held-out split is
-#: :data:`SHORT_TASK_HELD_OUT_EPISODES` episodes.
-SHORT_TASK_STEPS = 150
-#: Held-out episodes of a short task. Their paired per-episode differences spread 0.2–0.3 m, so
-#: 100 episodes resolve only leads above about 0.05 m; 400 (at a quarter of a 400-step task's cost
-#: per episode) resolve about 0.03 m (docs/benchmark.md, "Statistics").
-SHORT_TASK_HELD_OUT_EPISODES = 400
-#: Held-out episodes an experiment may declare on a short task, beyond the leaderboard's
-#: :data:`SHORT_TASK_HELD_OUT_EPISODES`, so that the paired rule can tell leads of 0.02–0.03 m
-#: (docs/benchmark.md, "What the rule can resolve"); the count is fixed before the recipe trains.
-#: The most any experiment may declare.
-DECLARED_HELD_OUT_EPISODES = 1600
-#: Held-out episodes an experiment may declare on a task longer than :data:`SHORT_TASK_STEPS`
-#: (with the 400-step loop's per-episode spread of paired differences, 0.23 m, the
-#: leaderboard's 100 resolve leads of about 0.045 m; 400 about 0.023 m, at four times the cost).
-LONG_TASK_DECLARED_HELD_OUT_EPISODES = 400
-#: Every held-out seed of the protocol (the most any task or declared experiment uses): nothing may be chosen on them.
-HELD_OUT_SEEDS = range(
-    HELD_OUT_SEED,
-    HELD_OUT_SEED
-    + max(
-        HELD_OUT_EPISODES,
-        SHORT_TASK_HELD_OUT_EPISODES,
-        DECLARED_HELD_OUT_EPISODES,
-        LONG_TASK_DECLARED_HELD_OUT_EPISODES,
-    ),
-)
-
-
-def _is_short_task(env_id: str) -> bool:
-    """Whether ``env_id`` is a short task (at most :data:`SHORT_TASK_STEPS` steps); checks the id."""
-    if not isinstance(env_id, str):
-        raise TypeError(f"env_id must be a str, got {type(env_id).__name__}")
-    try:
-        steps = gym.spec(env_id).max_episode_steps
-    except gym.error.Error:
-        raise ValueError(f"env_id: unknown env {env_id!r}") from None
-    return steps is not None and steps <= SHORT_TASK_STEPS
-
-
-def held_out_episodes(env_id: str) -> int:
-    """The protocol's held-out episodes of ``env_id``: 400 on the short tasks (the budgets), 100 on the others.
-
-    Raises
-    ------
-    TypeError
-        If ``env_id`` is not a string.
-    ValueError
-        If ``env_id`` is not registered.
-    """
-    return SHORT_TASK_HELD_OUT_EPISODES if _is_short_task(env_id) else HELD_OUT_EPISODES
-
-
-def declared_held_out_episodes(env_id: str) -> int:
-    """The held-out episodes an experiment on ``env_id`` may declare before its recipe trains.
-
-    1600 on the short tasks (:data:`DECLARED_HELD_OUT_EPISODES`), 400 on the others
-    (:data:`LONG_TASK_DECLARED_HELD_OUT_EPISODES`): seeds ``HELD_OUT_SEED`` onwards, the
-    leaderboard's among them. The leaderboard keeps :func:`held_out_episodes`.
-
-    Raises
-    ------
-    TypeError, ValueError
-        As :func:`held_out_episodes`.
-    """
-    return DECLARED_HELD_OUT_EPISODES if _is_short_task(env_id) else LONG_TASK_DECLARED_HELD_OUT_EPISODES
-
-
-POLICY_DIR = Path(__file__).parent / "policies"
-
-
-@dataclass(frozen=True)
-class ShippedPolicy:
-    """A trained policy shipped in ``agents/policies``.
-
-    Attributes
-    ----------
-    path : Path
-        The Stable-Baselines3 ``.zip``.
-    trained_on : str
-        The env id it was trained on.
-    recipe : str
-        Where its exact training configuration is written down.
-    chosen_for : str or None
-        The env id whose validation seeds chose its checkpoint, when that is not ``trained_on``
-        (a policy trained on one task and shipped for another); ``None``: ``trained_on``.
-    """
-
-    path: Path
-    trained_on: str
-    recipe: str
-    chosen_for: str | None = None
-
-    @property
-    def task(self) -> str:
-        """The env id the policy is shipped for: :attr:`chosen_for`, else :attr:`trained_on`."""
-        return self.trained_on if self.chosen_for is None else self.chosen_for
-
-
-#: label -> the explorers shipped with the package (the adversary is not an explorer).
-SHIPPED_POLICIES: dict[str, ShippedPolicy] = {
-    "ppo": ShippedPolicy(POLICY_DIR / "ppo_seif_explore.zip", "SeifExplore-v0", "README.md, 'Training'"),
-    "ppo_loop_budget": ShippedPolicy(
-        POLICY_DIR / "ppo_loop_budget.zip", "SeifExploreLoopBudget-v1", "docs/benchmark.md, 'Shipped policies'"
-    ),
-    "ppo_loop_budget_v2": ShippedPolicy(
-        POLICY_DIR / "ppo_loop_budget_v2.zip", "SeifExploreLoopBudget-v2", "docs/benchmark.md, 'Shipped policies'"
-    ),
-    "ppo_budget_v2": ShippedPolicy(
-        POLICY_DIR / "ppo_budget_v2.zip", "SeifExploreBudget-v2", "docs/benchmark.md, 'Shipped policies'"
-    ),
-    "ppo_lstm_loop_budget_v2": ShippedPolicy(
-        POLICY_DIR / "ppo_lstm_loop_budget_v2.zip", "SeifExploreLoopBudget-v2", "docs/benchmark.md, 'Shipped policies'"
-    ),
-    "ppo_lstm_clustered_budget_v2": ShippedPolicy(
-        POLICY_DIR / "ppo_lstm_clustered_budget_v2.zip",
-        "SeifExploreLoopBudget-v2",
-        "docs/benchmark.md, 'Shipped policies'",
-        chosen_for="SeifExploreClusteredBudget-v2",
-    ),
-    "ppo_lstm_loop_v2": ShippedPolicy(
-        POLICY_DIR / "ppo_lstm_loop_v2.zip",
-        "SeifExploreLoopBudget-v2",
-        "docs/benchmark.md, 'Shipped policies'",
-        chosen_for="SeifExploreLoop-v2",
-    ),
-    "ppo_lstm_clustered_v2": ShippedPolicy(
-        POLICY_DIR / "ppo_lstm_clustered_v2.zip",
-        "SeifExploreLoopBudget-v2",
-        "docs/benchmark.md, 'Shipped policies'",
-        chosen_for="SeifExploreClustered-v2",
-    ),
-    "ppo_lstm_seif_explore_v2": ShippedPolicy(
-        POLICY_DIR / "ppo_lstm_seif_explore_v2.zip", "SeifExplore-v2", "docs/benchmark.md, 'Shipped policies'"
-    ),
-}
+#: The shipped exploration policies: what the leaderboard runs beside the baselines by default.
+EXPLORERS: tuple[str, ...] = tuple(name for name, policy in SHIPPED_POLICIES.items() if policy.explorer)
 
 #: Columns of ``leaderboard.csv`` (and keys of each row of ``leaderboard.json``).
 LEADERBOARD_COLUMNS: tuple[str, ...] = (
@@ -430,7 +285,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         f"tasks of at most {SHORT_TASK_STEPS} steps, {HELD_OUT_EPISODES} on the others)",
     )
     parser.add_argument("--seed", type=int, default=HELD_OUT_SEED, help="first held-out seed (default %(default)s)")
-    parser.add_argument("--agents", default=",".join([*BASELINES, *SHIPPED_POLICIES]),
+    parser.add_argument("--agents", default=",".join([*BASELINES, *EXPLORERS]),
                         help="comma-separated baselines and shipped policies (default: all)")  # fmt: skip
     parser.add_argument("--jobs", type=int, default=1, help="worker processes, one variant each")
     parser.add_argument("--out", default="benchmark", help="output folder (default %(default)s)")

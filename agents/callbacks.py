@@ -38,9 +38,9 @@ import gymnasium as gym
 import numpy as np
 from stable_baselines3.common.callbacks import BaseCallback
 
-from agents.benchmark import VALIDATION_SEED
 from agents.checkpoints import save_with_vecnormalize
 from agents.memories import policy_memories
+from agents.protocol import VALIDATION_SEED
 
 __all__ = ["EVAL_COLUMNS", "MapErrorEvalCallback", "TaskMetricsCallback", "run_folder"]
 

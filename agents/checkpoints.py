@@ -192,7 +192,7 @@ def behaviour_fingerprint(model_path: str | os.PathLike) -> str:
     str
         A SHA-256 hex digest. Equal digests mean the same deterministic actions on
         the same observations: the callback's best model is often the run's final
-        model or its last checkpoint saved again, and ``agents.select`` scores such
+        model or its last checkpoint saved again, and ``research.select`` scores such
         a candidate once.
 
     Raises

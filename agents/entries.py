@@ -1,8 +1,8 @@
 """One entry added to a ``Dict`` observation space: the checks the policy-side wrappers share.
 
 :class:`agents.time_feature.TimeLeftObservation`,
-:class:`agents.coverage_memory.CoverageMemoryObservation` and
-:class:`agents.residual.PlannerResidualAction` each add one entry that the
+:class:`research.coverage_memory.CoverageMemoryObservation` and
+:class:`research.residual.PlannerResidualAction` each add one entry that the
 env does not have (:mod:`agents.memories`).
 
 >>> import gymnasium as gym

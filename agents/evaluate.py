@@ -103,28 +103,26 @@ import math
 import os
 import sys
 import time
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import gymnasium as gym
 import numpy as np
 from scipy import stats
 
 import seif_gym  # noqa: F401  (registers the environments)
-from agents.baselines import BASELINES, Agent, baseline_class, make_agent
+from agents.base import Agent
+from agents.baselines import BASELINES, baseline_class
 from agents.cli import json_object
-from agents.memories import PolicyMemories, has_policy_entries, policy_memories, policy_view
+from agents.loading import agent_label, agent_labels, check_agent_spec, load_agent
 from agents.parallel import Executor, chunks
 from agents.parallel import add_arguments as add_executor_arguments
 from agents.parallel import from_arguments as executor_from_arguments
-from agents.residual import uses_planner_action
+from agents.sb3_agent import SB3Agent, sb3_algorithm
 from seif_gym import LATEST_ID
 from seif_gym.progress import Progress
 from seif_gym.validation import as_count
-
-if TYPE_CHECKING:
-    from stable_baselines3.common.base_class import BaseAlgorithm
 
 __all__ = [
     "RESULT_COLUMNS",
@@ -238,199 +236,9 @@ TABLE_COLUMNS: tuple[tuple[str, str], ...] = (
 
 
 # -- agents ----------------------------------------------------------------------------------------
-def sb3_algorithm(path: str | os.PathLike) -> type[BaseAlgorithm]:
-    """The algorithm class that loads the SB3 model at ``path``: ``PPO``, ``RecurrentPPO`` or ``SAC``.
-
-    Read from the policy class saved in the ``.zip`` (without loading the weights).
-
-    Raises
-    ------
-    ValueError
-        ``path`` is not a model of one of the three algorithms.
-    """
-    import zipfile
-
-    from sb3_contrib import RecurrentPPO
-    from sb3_contrib.common.recurrent.policies import RecurrentActorCriticPolicy
-    from stable_baselines3 import PPO, SAC
-    from stable_baselines3.common.policies import ActorCriticPolicy
-    from stable_baselines3.common.save_util import json_to_data
-    from stable_baselines3.sac.policies import SACPolicy
-
-    try:
-        with zipfile.ZipFile(path) as archive:
-            policy = json_to_data(archive.read("data").decode()).get("policy_class")
-    except (OSError, KeyError, zipfile.BadZipFile, ValueError) as error:
-        raise ValueError(f"path: {str(path)!r} is not a saved SB3 model ({error})") from error
-    # the recurrent policy is an actor-critic policy too: ask for it first
-    for policy_base, algorithm in ((RecurrentActorCriticPolicy, RecurrentPPO), (SACPolicy, SAC),
-                                   (ActorCriticPolicy, PPO)):  # fmt: skip
-        if isinstance(policy, type) and issubclass(policy, policy_base):
-            return algorithm
-    raise ValueError(f"path: {str(path)!r} holds a {policy!r} policy, not one of PPO, RecurrentPPO or SAC")
-
-
-class SB3Agent(Agent):
-    """A saved Stable-Baselines3 model (PPO, RecurrentPPO or SAC) behind the :class:`~agents.baselines.Agent` interface.
-
-    Parameters
-    ----------
-    path : str or Path
-        The model's ``.zip``.
-    env : gymnasium.Env, optional
-        Used only to rebuild a ``VecNormalize`` (its spaces).
-    env_factory : callable, optional
-        Builds an env for ``VecNormalize.load`` when the model's
-        normalisation statistics are found
-        (:func:`agents.checkpoints.vecnormalize_path`: a checkpoint's
-        ``PREFIX_vecnormalize_<N>_steps.pkl``, else ``vecnormalize.pkl``
-        in the model's folder or rl-zoo3's ``<EnvId>/vecnormalize.pkl``); its
-        observation normalisation (``obs_rms``) is then applied to every
-        observation (statistics frozen).
-    """
-
-    name = "sb3"
-
-    def __init__(self, path: str | os.PathLike, env: Any | None = None, env_factory: Any | None = None) -> None:
-        super().__init__(env)
-        self.path = Path(path)
-        # the recurrent state runs through predict's ``state`` (run_episode passes it back each step)
-        self.model = sb3_algorithm(self.path).load(self.path, device="cpu")
-        self.vecnormalize = None
-        from agents.checkpoints import vecnormalize_path
-
-        factory: Callable[[], Any] = env_factory if env_factory is not None else (lambda: env)
-        # a policy trained with entries of its own (the budget's clock, the coverage memory) computes them itself
-        space = self.model.observation_space
-        self.memories: PolicyMemories | None = None
-        if has_policy_entries(space):
-            if env is None and uses_planner_action(space):
-                raise ValueError(f"env: {self.path} is a residual on the planner, which plans with the env it acts in")
-            if env is not None:
-                self.memories = policy_memories(space, env)
-            else:
-                probe = factory()
-                try:
-                    self.memories = policy_memories(space, probe)
-                finally:
-                    if probe is not None:
-                        probe.close()
-            plain_factory = factory
-            factory = lambda: policy_view(plain_factory(), space)  # noqa: E731  (the spaces VecNormalize checks)
-        # the statistics saved with this very model (a checkpoint's own, never a later moment's)
-        stats_path = vecnormalize_path(self.path)
-        if stats_path is not None:
-            from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
-
-            self.vecnormalize = VecNormalize.load(str(stats_path), DummyVecEnv([factory]))
-            self.vecnormalize.training = False
-            self.vecnormalize.norm_reward = False
-
-    def predict(
-        self,
-        observation: Mapping[str, np.ndarray],
-        state: Any = None,
-        episode_start: Any = None,
-        deterministic: bool = False,
-    ) -> tuple[np.ndarray, Any]:
-        """The model's ``predict`` after its own entries and the saved observation normalisation (if any)."""
-        model_input: Any = (
-            dict(observation) if self.memories is None else self.memories.observe(observation, episode_start)
-        )
-        if self.vecnormalize is not None:
-            model_input = self.vecnormalize.normalize_obs(model_input)
-        action, state = self.model.predict(
-            model_input, state=state, episode_start=episode_start, deterministic=deterministic
-        )
-        if self.memories is not None:
-            action = self.memories.act(action)  # a residual's sum with the planner's action
-        return np.asarray(action, dtype=np.float32), state
-
-    def _act(self, observation: Mapping[str, np.ndarray], index: int) -> np.ndarray:
-        """One unbatched observation (the model is stateless across envs)."""
-        return self.predict(observation, deterministic=True)[0]
-
-    def reset(self, index: int | None = None) -> None:
-        """Env ``index`` (every env when ``None``) starts a new episode; the policy's own entries restart with it."""
-        super().reset(index)
-        if self.memories is not None:
-            self.memories.reset(index)
-
-    def __repr__(self) -> str:
-        return f"SB3Agent({str(self.path)!r}, vecnormalize={self.vecnormalize is not None})"
-
-
-def _is_model_path(spec: str) -> bool:
-    return spec.endswith(".zip")
-
-
-def agent_label(spec: str) -> tuple[str, str]:
-    """``(label, target)`` of an agent spec.
-
-    Parameters
-    ----------
-    spec : str
-        ``LABEL=TARGET``, the path of an SB3 ``.zip`` (labelled by its stem,
-        or by its folder's name for ``model.zip`` and ``best_model.zip``), or
-        a baseline name / ``rllib:CHECKPOINT`` (labelled by itself).
-
-    Returns
-    -------
-    label : str
-    target : str
-        What :func:`build_agent` builds.
-    """
-    if not isinstance(spec, str) or not spec.strip():
-        raise ValueError(f"spec must be a non-empty agent spec, got {spec!r}")
-    if "=" in spec:
-        label, _, target = spec.partition("=")
-        return label.strip(), target.strip()
-    if _is_model_path(spec):
-        path = Path(spec)
-        folder = path.parent.name
-        return (folder if path.stem in ("model", "best_model") and folder else path.stem), spec
-    return spec, spec
-
-
-def agent_labels(specs: Sequence[str]) -> list[tuple[str, str]]:
-    """:func:`agent_label` of every spec, repeated labels made distinct (``frontier#2``)."""
-    seen: list[str] = []
-    result: list[tuple[str, str]] = []
-    for spec in specs:
-        label, target = agent_label(spec)
-        base, k = label, 2
-        while label in seen:
-            label, k = f"{base}#{k}", k + 1
-        seen.append(label)
-        result.append((label, target))
-    return result
-
-
-def check_agent_spec(spec: str) -> None:
-    """Raise unless ``spec`` (a :func:`agent_label` target) names an agent :func:`build_agent` can build.
-
-    Raises
-    ------
-    FileNotFoundError
-        If an SB3 ``.zip`` does not exist.
-    ValueError
-        If ``spec`` is neither a baseline, a ``.zip`` nor ``rllib:CHECKPOINT``.
-    """
-    if _is_model_path(spec):
-        if not Path(spec).exists():
-            raise FileNotFoundError(f"no model at {spec}")
-    elif spec not in BASELINES and not spec.startswith("rllib:"):
-        raise ValueError(
-            f"unknown agent {spec!r}: use one of {', '.join(BASELINES)}, the path of an SB3 .zip or rllib:CHECKPOINT"
-        )
-
-
 def build_agent(spec: str, env: gym.Env, env_id: str, env_kwargs: Mapping[str, Any], seed: int) -> Agent:
-    """The agent of ``spec``: a baseline name, the path of an SB3 ``.zip`` or ``rllib:CHECKPOINT``."""
-    check_agent_spec(spec)
-    if _is_model_path(spec):
-        return SB3Agent(spec, env, env_factory=lambda: gym.make(env_id, **env_kwargs))
-    return make_agent(spec, env, **({"seed": seed} if spec == "random" else {}))
+    """:func:`agents.load_agent` for an evaluation of ``env_id`` with ``env_kwargs`` (``random`` seeded with ``seed``)."""
+    return load_agent(spec, env, seed=seed, env_factory=lambda: gym.make(env_id, **env_kwargs))
 
 
 # -- running ---------------------------------------------------------------------------------------

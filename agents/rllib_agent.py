@@ -26,7 +26,7 @@ Its ``model_config`` keys (all optional): ``map_features`` (128),
 :class:`RLlibAgent` loads the module from a checkpoint written by
 ``python -m agents.rllib_train`` (an algorithm checkpoint, or the module's own
 directory inside it) and acts deterministically (the Gaussian's mean, clipped
-to ``[-1, 1]``) behind the common :class:`~agents.baselines.Agent` interface,
+to ``[-1, 1]``) behind the common :class:`~agents.base.Agent` interface,
 so ``python -m agents.evaluate --agents rllib:runs/rllib/checkpoint`` compares
 it with the baselines.
 
@@ -55,7 +55,7 @@ from ray.rllib.core.rl_module.rl_module import RLModule
 from ray.rllib.core.rl_module.torch import TorchRLModule
 from torch import nn
 
-from agents.baselines import Agent
+from agents.base import Agent
 from agents.networks import belief_map_encoder
 
 __all__ = ["AGENT_PREFIX", "DEFAULT_MODEL_CONFIG", "MAP_KEY", "BeliefRLModule", "RLlibAgent", "module_checkpoint"]

@@ -13,9 +13,9 @@ and ``max_episode_steps=`` ``--steps``) is **recorded once** (the policy acts
 on the env's own SEIF through :class:`~seif_gym.episodes.EpisodeRecorder`,
 exactly as it would in training; :func:`record_episode`) and then
 **replayed** through every filter of ``--filters`` and scored by
-:mod:`seif_gym.evaluate`, whose docstring defines the filters, the metrics
+:mod:`seif_gym.harness`, whose docstring defines the filters, the metrics
 and the outputs. This module adds only what needs the agents: building the
-policies and driving the recording. ``python -m seif_gym.evaluate
+policies and driving the recording. ``python -m seif_gym.harness
 --episodes DIR`` scores saved episodes again without them.
 
 Policies (``--policies``, comma separated; default every baseline of
@@ -51,6 +51,16 @@ from typing import Any, cast
 
 import gymnasium as gym
 import numpy as np
+from seif_gym.harness import (
+    RESULT_COLUMNS,
+    FilterSpec,
+    default_filters,
+    parse_filters,
+    score_episode,
+    summary_tables,
+    warm_up,
+    write_outputs,
+)
 
 import seif_gym  # noqa: F401  (registers the environments)
 from agents.baselines import BASELINES, Agent
@@ -68,16 +78,6 @@ from agents.parallel import add_arguments as add_executor_arguments
 from agents.parallel import from_arguments as executor_from_arguments
 from seif_gym.envs.explore import SeifExploreEnv
 from seif_gym.episodes import Episode, EpisodeRecorder
-from seif_gym.evaluate import (
-    RESULT_COLUMNS,
-    FilterSpec,
-    default_filters,
-    parse_filters,
-    score_episode,
-    summary_tables,
-    warm_up,
-    write_outputs,
-)
 from seif_gym.progress import Progress
 from seif_gym.threads import limit_blas_threads
 from seif_gym.world import LAYOUTS
@@ -88,7 +88,7 @@ __all__ = ["DEFAULT_POLICIES", "PAIRED_METRICS", "PAIRED_COLUMNS", "record_episo
 #: Policies of a run without ``--policies``.
 DEFAULT_POLICIES: tuple[str, ...] = BASELINES
 
-#: Metrics of :func:`paired_policies` by default (columns of :data:`seif_gym.evaluate.RESULT_COLUMNS`).
+#: Metrics of :func:`paired_policies` by default (columns of :data:`seif_gym.harness.RESULT_COLUMNS`).
 PAIRED_METRICS: tuple[str, ...] = ("anees_pose", "anees_relative", "final_map_error", "pose_rmse")
 
 #: :func:`agents.evaluate.paired_verdict` (lower is better) in the neutral words of a comparison of policies.
@@ -156,7 +156,7 @@ def evaluate(
     steps : int
         ``max_episode_steps`` of the recorded episodes.
     filters : sequence of str or FilterSpec, optional
-        Default :func:`seif_gym.evaluate.default_filters`.
+        Default :func:`seif_gym.harness.default_filters`.
     env_id, env_kwargs
         The env: ``gym.make(env_id, layout=..., max_episode_steps=steps, **env_kwargs)``.
     nees_every : int
@@ -175,9 +175,9 @@ def evaluate(
     -------
     rows : list of dict
         One per policy × layout × seed × filter (in this nesting order), keys
-        :data:`seif_gym.evaluate.RESULT_COLUMNS`.
+        :data:`seif_gym.harness.RESULT_COLUMNS`.
     series : list of dict
-        The per-step curves of each row (:func:`seif_gym.evaluate.score_replay`).
+        The per-step curves of each row (:func:`seif_gym.harness.score_replay`).
     """
     if isinstance(policies, str):
         policies = [p for p in policies.split(",") if p]
@@ -404,7 +404,7 @@ def _record_and_score(
     """One task of :func:`evaluate`: record ``target``'s episodes on ``seeds`` and replay each through ``specs``.
 
     Returns, per seed, the episode, its rows and curves
-    (:func:`seif_gym.evaluate.score_episode`) and the seconds spent
+    (:func:`seif_gym.harness.score_episode`) and the seconds spent
     recording and replaying.
     """
     key = repr((list(specs), sorted(config.items()), nees_every))
@@ -436,7 +436,7 @@ def _parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="python -m agents.robustness",
         description="Record episodes once per (policy, layout, seed) and replay them through every filter.",
-        epilog="The metrics and outputs: python -c 'import seif_gym.evaluate as e; help(e)'.",
+        epilog="The metrics and outputs: python -c 'import seif_gym.harness as e; help(e)'.",
     )
     parser.add_argument("--policies", default=",".join(DEFAULT_POLICIES),
                         help=f"comma-separated baselines ({', '.join(BASELINES)}), PATH.zip, rllib:CHECKPOINT, "

@@ -33,11 +33,13 @@ import numpy as np
 
 import seif_gym  # noqa: F401  (registers the envs)
 from agents import BASELINES
-from agents.benchmark import HELD_OUT_SEED, held_out_episodes
-from agents.evaluate import SB3Agent, evaluate_agents, markdown_table, paired_table, write_outputs
+from agents.evaluate import evaluate_agents, markdown_table, paired_table, write_outputs
+from agents.loading import SHIPPED_POLICIES
+from agents.protocol import HELD_OUT_SEED, held_out_episodes
+from agents.sb3_agent import SB3Agent
 from seif_gym.progress import Progress
 
-SHIPPED_POLICY = Path(__file__).parent / "policies" / "ppo_seif_explore.zip"
+SHIPPED_POLICY = SHIPPED_POLICIES["ppo"].path
 #: The env the main job evaluates on: the newest version (the shipped policy was trained on ``SeifExplore-v0``).
 ENV_ID = "SeifExplore-v2"
 

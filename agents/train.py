@@ -31,11 +31,6 @@ here what it means there, and a run of either command is read by
 * ``--init-from MODEL.zip``: start from a saved model's weights *and* its
   normalisation statistics (found by :func:`agents.checkpoints.vecnormalize_path`),
   with this run's hyperparameters (fine-tuning);
-* ``--kickstart TEACHER``: before learning, clone a baseline (``info_gain``)
-  or the privileged ``coverage_oracle`` (:mod:`agents.oracle`) into the
-  policy, on the teacher's own episodes and then ``--dagger-rounds`` DAgger
-  rounds, ``--kickstart-episodes`` episodes in all on training seeds drawn
-  from ``--seed`` (:mod:`agents.imitation`); PPO then learns from the clone;
 * ``--mix-env ID`` (repeatable): train on a mixture of tasks. The training
   envs take the ids ``--env``, then each ``--mix-env`` in turn by rank (8 envs
   and one ``--mix-env``: four of each); the config's entry, the validation
@@ -84,7 +79,6 @@ from pathlib import Path
 from typing import Any
 
 import gymnasium as gym
-import numpy as np
 import yaml
 
 import seif_gym  # noqa: F401  (registers the envs)
@@ -94,6 +88,9 @@ from agents.hyperparams import HYPERPARAMS_DIR
 from seif_gym import LATEST_ID
 
 #: The algorithms of rl-zoo3 (``rl_zoo3.ALGOS``); configs ``agents/hyperparams/<algo>.yml`` exist for ``ppo``, ``ppo_lstm`` and ``sac``.
+#: ``before_learn(args, experiment, model)``: a hook called after the model is built, before it learns.
+BeforeLearn = Callable[[argparse.Namespace, Any, Any], None]
+
 ALGOS = ("a2c", "ddpg", "dqn", "ppo", "sac", "td3", "ars", "crossq", "qrdqn", "tqc", "trpo", "ppo_lstm")
 VEC_ENVS = ("native", "dummy", "subproc")
 
@@ -209,21 +206,6 @@ def build_parser() -> argparse.ArgumentParser:
         default=None,
         help="a saved .zip whose weights and normalisation statistics start this run (fine-tuning)",
     )
-    parser.add_argument(
-        "--kickstart",
-        default=None,
-        metavar="TEACHER",
-        help="before learning, clone this teacher into the policy: a baseline (e.g. info_gain) or "
-        "coverage_oracle (privileged: reads the true state); its episodes, then DAgger rounds (agents.imitation)",
-    )
-    parser.add_argument(
-        "--kickstart-episodes",
-        type=int,
-        default=48,
-        help="episodes of the cloning, split between the baseline's own and the DAgger rounds' (training seeds "
-        "drawn from --seed)",
-    )
-    parser.add_argument("--dagger-rounds", type=int, default=2, help="DAgger rounds of the cloning")
     parser.add_argument(
         "--wrapper",
         default=None,
@@ -518,8 +500,16 @@ def mixture_ids(env_id: str, mix: Sequence[str], env_kwargs: dict[str, Any] | No
     return ids
 
 
-def prepare(args: argparse.Namespace) -> tuple[Any, Any]:
+def prepare(args: argparse.Namespace, before_learn: BeforeLearn | None = None) -> tuple[Any, Any]:
     """The experiment and its model, ready to learn (config read, envs and callbacks built, ``--init-from`` applied).
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        The arguments of :func:`build_parser`.
+    before_learn : callable, optional
+        ``before_learn(args, experiment, model)``, called last (after ``--init-from``): a hook for code
+        that changes the starting weights, such as the research log's kickstarting (``research/``).
 
     Returns
     -------
@@ -531,8 +521,6 @@ def prepare(args: argparse.Namespace) -> tuple[Any, Any]:
     if args.env.split(":")[-1] not in gym.registry:
         raise ValueError(f"--env: unknown env {args.env!r}")
     mixture_ids(args.env, args.mix_env, args.env_kwargs)
-    if args.kickstart:
-        _check_kickstart(args)
     set_random_seed(args.seed)  # as rl_zoo3.train does before building the experiment
     experiment = _experiment_class()(args)
     with _maybe_silent(args.quiet):
@@ -549,8 +537,8 @@ def prepare(args: argparse.Namespace) -> tuple[Any, Any]:
                 f"agents.train: weights from {args.init_from}, statistics from {stats or '(none saved)'}",
                 file=sys.stderr,
             )
-    if args.kickstart:
-        _kickstart(args, experiment, model)
+    if before_learn is not None:
+        before_learn(args, experiment, model)
     if not args.quiet:
         for line in negative_schedule_warnings(model, experiment.n_timesteps):
             print(f"agents.train: {line}", file=sys.stderr)
@@ -600,56 +588,9 @@ def negative_schedule_warnings(model: Any, total_timesteps: int) -> list[str]:
     return lines
 
 
-def kickstart_seeds(seed: int, episodes: int) -> list[int]:
-    """The cloning's episode seeds of training seed ``seed``: ``episodes`` distinct seeds of the training split."""
-    from agents.benchmark import VALIDATION_SEED  # the training split is every seed below it
-
-    if episodes < 1:
-        raise ValueError(f"--kickstart-episodes must be at least 1, got {episodes}")
-    return sorted(int(s) for s in np.random.default_rng(seed).choice(VALIDATION_SEED, size=episodes, replace=False))
-
-
-def _check_kickstart(args: argparse.Namespace) -> None:
-    """``ValueError`` for ``--kickstart`` arguments that cannot work, before anything is built."""
-    from agents.imitation import TEACHERS
-
-    if args.kickstart not in TEACHERS:
-        raise ValueError(f"--kickstart: unknown teacher {args.kickstart!r}; teachers: {', '.join(TEACHERS)}")
-    if args.algo != "ppo":
-        raise ValueError(f"--kickstart: clones into PPO's actor-critic policy, got --algo {args.algo}")
-    if args.init_from:
-        raise ValueError("--kickstart and --init-from both choose the starting weights: pass one of them")
-    from agents.imitation import round_seeds
-
-    try:
-        round_seeds(kickstart_seeds(args.seed, args.kickstart_episodes), args.dagger_rounds)
-    except ValueError as error:
-        raise ValueError(f"--kickstart-episodes/--dagger-rounds: {error}") from error
-
-
-def _kickstart(args: argparse.Namespace, experiment: Any, model: Any) -> None:
-    """Clone ``--kickstart`` into ``model`` on the training envs' wrapped single env (agents.imitation)."""
-    from agents.imitation import kickstart
-
-    seeds = kickstart_seeds(args.seed, args.kickstart_episodes)
-    env_id, env_kwargs, wrapper = experiment.env_name.gym_id, dict(experiment.env_kwargs), experiment.env_wrapper
-
-    def make_env() -> gym.Env:
-        env = gym.make(env_id, **env_kwargs)
-        return wrapper(env) if wrapper is not None else env
-
-    def say(line: str) -> None:
-        if not args.quiet:
-            print(f"agents.train: {line}", file=sys.stderr)
-
-    started = time.perf_counter()
-    kickstart(model, make_env, args.kickstart, seeds=seeds, dagger_rounds=args.dagger_rounds, log=say)
-    say(f"kickstart: {time.perf_counter() - started:.0f} s")
-
-
-def train(args: argparse.Namespace) -> Path:
-    """Train and save; returns the run's folder."""
-    return _learn_and_save(args, *prepare(args))
+def train(args: argparse.Namespace, before_learn: BeforeLearn | None = None) -> Path:
+    """Train and save; returns the run's folder (``before_learn``: as :func:`prepare`)."""
+    return _learn_and_save(args, *prepare(args, before_learn))
 
 
 def _learn_and_save(args: argparse.Namespace, experiment: Any, model: Any) -> Path:
@@ -669,17 +610,26 @@ def _learn_and_save(args: argparse.Namespace, experiment: Any, model: Any) -> Pa
     return folder
 
 
-def main(argv: Sequence[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
+def run(args: argparse.Namespace, before_learn: BeforeLearn | None = None) -> int:
+    """Prepare (``before_learn`` as :func:`prepare`), learn and save the run of ``args``; the exit status.
+
+    A ``ValueError`` or ``FileNotFoundError`` raised while preparing (a bad argument or config) becomes a
+    one-line exit message; an error during training keeps its traceback.
+    """
     if args.keep_freed_memory:
         keep_freed_memory()  # before torch allocates: the update's tensors then reuse the heap's pages
     try:
-        experiment, model = prepare(args)
+        experiment, model = prepare(args, before_learn)
     except (ValueError, FileNotFoundError) as error:  # a bad argument or config: one line, no traceback
         raise SystemExit(f"agents.train: {error}") from error
     # an error during training (numpy's LinAlgError is a ValueError too) keeps its traceback
     _learn_and_save(args, experiment, model)
     return 0
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """The command line: :func:`run` on ``argv`` parsed by :func:`build_parser`."""
+    return run(build_parser().parse_args(argv))
 
 
 if __name__ == "__main__":

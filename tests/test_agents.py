@@ -606,7 +606,7 @@ def test_json_object_arguments_are_read_once_for_every_command_line(capsys):
     import agents.cli
     from agents.evaluate import main as evaluate_main
     from agents.robustness import main as robustness_main
-    from agents.select import main as select_main
+    from research.select import main as select_main
 
     assert doctest.testmod(agents.cli).failed == 0
     for main, argv in (

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 import seif_gym
-from agents import benchmark
+from agents import benchmark, protocol
 
 
 def test_default_variants_are_every_layout_of_a_version():
@@ -33,7 +33,7 @@ def test_shipped_policy_fits_the_default_variant():
     ring = benchmark.SHIPPED_POLICIES["ppo_lstm_clustered_budget_v2"]
     assert ring.task == ring.chosen_for == "SeifExploreClusteredBudget-v2" != ring.trained_on
     assert benchmark.SHIPPED_POLICIES["ppo"].task == "SeifExplore-v0"  # no chosen_for: its training task
-    for policy in benchmark.SHIPPED_POLICIES.values():  # agents.ship's record of the choice names the same task
+    for policy in benchmark.SHIPPED_POLICIES.values():  # research.ship's record of the choice names the same task
         record = policy.path.with_suffix("") / "selection.json"
         if record.is_file():
             assert json.loads(record.read_text())["env_id"] == policy.task, policy.path.name
@@ -101,33 +101,33 @@ def test_a_shipped_policy_goes_by_its_leaderboard_name_in_the_variants_own_files
 
 
 def test_held_out_episodes_are_400_on_the_short_tasks_and_100_on_the_others():
-    assert benchmark.held_out_episodes("SeifExploreClusteredBudget-v2") == 400  # 100 steps
-    assert benchmark.held_out_episodes("SeifExploreLoopBudget-v2") == 400  # 150 steps
-    assert benchmark.held_out_episodes("SeifExplore-v2") == 100  # 400 steps
-    assert benchmark.held_out_episodes("SeifExploreLarge-v2") == 100
-    longest = max(benchmark.held_out_episodes(env_id) for env_id in seif_gym.VARIANTS)
-    assert longest < benchmark.DECLARED_HELD_OUT_EPISODES == 1600  # a declared experiment's count reaches further
-    first = benchmark.HELD_OUT_SEED
-    assert benchmark.HELD_OUT_SEEDS == range(first, first + benchmark.DECLARED_HELD_OUT_EPISODES)
+    assert protocol.held_out_episodes("SeifExploreClusteredBudget-v2") == 400  # 100 steps
+    assert protocol.held_out_episodes("SeifExploreLoopBudget-v2") == 400  # 150 steps
+    assert protocol.held_out_episodes("SeifExplore-v2") == 100  # 400 steps
+    assert protocol.held_out_episodes("SeifExploreLarge-v2") == 100
+    longest = max(protocol.held_out_episodes(env_id) for env_id in seif_gym.VARIANTS)
+    assert longest < protocol.DECLARED_HELD_OUT_EPISODES == 1600  # a declared experiment's count reaches further
+    first = protocol.HELD_OUT_SEED
+    assert protocol.HELD_OUT_SEEDS == range(first, first + protocol.DECLARED_HELD_OUT_EPISODES)
     with pytest.raises(ValueError, match="env_id: unknown env 'Nope-v0'"):
-        benchmark.held_out_episodes("Nope-v0")
+        protocol.held_out_episodes("Nope-v0")
     with pytest.raises(TypeError, match="env_id must be a str"):
-        benchmark.held_out_episodes(5)
+        protocol.held_out_episodes(5)
 
 
 def test_a_declared_count_is_1600_on_the_short_tasks_and_400_on_the_others_within_the_held_out_seeds():
-    assert benchmark.declared_held_out_episodes("SeifExploreClusteredBudget-v2") == 1600
-    assert benchmark.declared_held_out_episodes("SeifExploreBudget-v2") == 1600
-    assert benchmark.declared_held_out_episodes("SeifExploreLoop-v2") == 400  # 400 steps
-    assert benchmark.declared_held_out_episodes("SeifExploreLarge-v2") == 400
+    assert protocol.declared_held_out_episodes("SeifExploreClusteredBudget-v2") == 1600
+    assert protocol.declared_held_out_episodes("SeifExploreBudget-v2") == 1600
+    assert protocol.declared_held_out_episodes("SeifExploreLoop-v2") == 400  # 400 steps
+    assert protocol.declared_held_out_episodes("SeifExploreLarge-v2") == 400
     for env_id in seif_gym.VARIANTS:
-        declared = benchmark.declared_held_out_episodes(env_id)
-        assert declared > benchmark.held_out_episodes(env_id)  # reaches beyond the leaderboard's seeds
-        assert benchmark.HELD_OUT_SEED + declared - 1 in benchmark.HELD_OUT_SEEDS  # so agents.select refuses them all
+        declared = protocol.declared_held_out_episodes(env_id)
+        assert declared > protocol.held_out_episodes(env_id)  # reaches beyond the leaderboard's seeds
+        assert protocol.HELD_OUT_SEED + declared - 1 in protocol.HELD_OUT_SEEDS  # so research.select refuses them all
     with pytest.raises(ValueError, match="env_id: unknown env 'Nope-v0'"):
-        benchmark.declared_held_out_episodes("Nope-v0")
+        protocol.declared_held_out_episodes("Nope-v0")
     with pytest.raises(TypeError, match="env_id must be a str"):
-        benchmark.declared_held_out_episodes(None)
+        protocol.declared_held_out_episodes(None)
 
 
 def test_run_benchmark_runs_each_variant_on_its_protocol_count(tmp_path, monkeypatch):

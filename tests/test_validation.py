@@ -49,7 +49,7 @@ def test_the_env_and_the_coverage_memory_check_with_it():
     import gymnasium as gym
 
     from agents.baselines import Geometry
-    from agents.coverage_memory import CoverageMemory
+    from research.coverage_memory import CoverageMemory
     from seif_gym.envs.explore import RewardConfig, SensorConfig
 
     with pytest.raises(ValueError, match="sensor_range must be positive"):
@@ -168,7 +168,7 @@ def test_the_filters_and_their_helpers_check_with_it():
 
 def test_the_observation_config_vector_env_select_and_benchmark_check_with_it(tmp_path):
     from agents import benchmark
-    from agents.select import select_checkpoints
+    from research.select import select_checkpoints
     from seif_gym.envs.vector import SeifExploreVectorEnv
     from seif_gym.observation import ObservationConfig
 

@@ -9,7 +9,7 @@ mapped. It plans no revisits and no loop closures.
 Two uses, neither of them as a leaderboard agent:
 
 * a yardstick of how much room a task leaves to coverage
-  (``benchmarks/coverage_oracle.py``, docs/benchmark.md "Tasks");
+  (``research/coverage_oracle.py``, docs/benchmark.md "Tasks");
 * a *privileged teacher* for kickstarting (``agents.train --kickstart
   coverage_oracle``): its action is a function of the true state alone, so
   it labels any state a learner drives into (DAgger), and the learner, which
@@ -30,7 +30,8 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from agents.baselines import Agent, Observation, _unwrapped
+from agents.base import Agent, Observation
+from agents.baselines.geometry import unwrapped_env
 from seif_gym.slam import wrap_angle
 
 __all__ = ["STEERING_GAIN", "TURN_COST", "CoverageOracle", "oracle_action"]
@@ -99,7 +100,7 @@ class CoverageOracle(Agent):
     name: ClassVar[str] = "coverage_oracle"
 
     def __init__(self, env: Any) -> None:
-        base: Any = _unwrapped(env)
+        base: Any = unwrapped_env(env)
         if not hasattr(base, "world") or getattr(base, "filter_config", None) is None:
             raise TypeError(f"env must be a single SeifExplore env, got {type(base).__name__}")
         if base.filter_config.data_association != "known":

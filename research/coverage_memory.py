@@ -17,7 +17,7 @@ plain env computes the same entry on the agent's side
 
 >>> import gymnasium as gym
 >>> import seif_gym
->>> from agents.coverage_memory import UNSWEPT, CoverageMemoryObservation
+>>> from research.coverage_memory import UNSWEPT, CoverageMemoryObservation
 >>> env = CoverageMemoryObservation(gym.make("SeifExploreLarge-v2"))
 >>> observation, _ = env.reset(seed=0)
 >>> observation[UNSWEPT].shape, observation[UNSWEPT].dtype.name
@@ -37,6 +37,7 @@ import numpy as np
 
 from agents.baselines import Geometry
 from agents.entries import holds_entry, with_entry
+from agents.memories import PolicyEntry, register_policy_entry
 from seif_gym.validation import as_count, as_positive_scalar
 
 __all__ = ["UNSWEPT", "CoverageMemory", "CoverageMemoryObservation", "uses_coverage_memory"]
@@ -168,3 +169,16 @@ class CoverageMemoryObservation(gym.Wrapper, gym.utils.RecordConstructorArgs):
     def step(self, action):
         observation, reward, terminated, truncated, info = self.env.step(action)
         return self.memory.observe(observation), reward, terminated, truncated, info
+
+
+# first (innermost): the memory checks everything the clock checks (and the pose) before it changes,
+# so a refused observation changes neither
+register_policy_entry(
+    PolicyEntry(
+        UNSWEPT,
+        uses_coverage_memory,
+        lambda env: CoverageMemory(Geometry.from_env(env)),
+        CoverageMemoryObservation,
+        order=-1.0,
+    )  # fmt: skip
+)

@@ -2,7 +2,7 @@
 
 Usage::
 
-    python -m agents.ship RUN/selected/model.zip NAME --config RUN/<EnvId>/config.yml
+    python -m research.ship RUN/selected/model.zip NAME --config RUN/<EnvId>/config.yml
 
 writes
 
@@ -14,7 +14,7 @@ writes
 ``NAME/command.txt``            rl-zoo3's record of the command line, where it lies beside ``--config``
                                 (the steps, seed and ``--mix-env`` that ``config.yml`` does not hold)
 ``NAME/selection.json``         the model folder's ``selection.json`` if it has one
-                                (``agents.select``: what was chosen from what, on which seeds)
+                                (``research.select``: what was chosen from what, on which seeds)
 ==============================  =================================================================
 
 An SB3 ``.zip`` carries the Adam optimizer's state with the weights; its
@@ -43,13 +43,26 @@ import zipfile
 from collections.abc import Sequence
 from pathlib import Path
 
-from agents.benchmark import POLICY_DIR
 from agents.checkpoints import vecnormalize_path
+from agents.loading import POLICY_DIR
 
-__all__ = ["OPTIMIZER_ENTRY", "empty_optimizer_moments", "main", "ship"]
+__all__ = [
+    "OPTIMIZER_ENTRY",
+    "POLICY_ENTRY",
+    "CRITIC_PREFIXES",
+    "empty_optimizer_moments",
+    "for_acting",
+    "main",
+    "ship",
+]
 
 #: The member of an SB3 ``.zip`` that holds the optimizer's ``state_dict``.
 OPTIMIZER_ENTRY = "policy.optimizer.pth"
+#: The member of an SB3 ``.zip`` that holds the policy's ``state_dict``.
+POLICY_ENTRY = "policy.pth"
+#: ``state_dict`` keys of an actor-critic policy that only the value function reads (SB3's
+#: ``MultiInputPolicy`` with separate extractors, sb3-contrib's recurrent policy with a critic LSTM).
+CRITIC_PREFIXES = ("vf_features_extractor.", "mlp_extractor.value_net.", "value_net.", "lstm_critic.")
 _NAME = re.compile(r"[a-z][a-z0-9_]*")
 
 
@@ -92,6 +105,44 @@ def empty_optimizer_moments(model_zip: bytes) -> bytes:
                 if item.filename == OPTIMIZER_ENTRY:
                     state = torch.load(io.BytesIO(data), map_location="cpu", weights_only=True)
                     state["state"] = {}
+                    buffer = io.BytesIO()
+                    torch.save(state, buffer)
+                    data = buffer.getvalue()
+                target.writestr(item, data)
+    return out.getvalue()
+
+
+def for_acting(model_zip: bytes) -> bytes:
+    """``model_zip`` as a policy that acts: optimizer moments emptied and the value function zeroed.
+
+    Acting (``predict``) reads the actor alone: the features extractor of the policy, the policy
+    network, the action net and, for a recurrent policy, the actor's LSTM. The value function's tensors
+    (:data:`CRITIC_PREFIXES`) keep their shapes, so Stable-Baselines3 still loads the file, but hold
+    zeros, which compress to nothing: the file acts exactly as the original and is no starting point
+    for further training (its value function and optimizer restart from zero).
+
+    Raises
+    ------
+    TypeError, ValueError
+        As :func:`empty_optimizer_moments`; ``ValueError`` if no tensor of the value function is found.
+    """
+    import torch
+
+    emptied = empty_optimizer_moments(model_zip)
+    with zipfile.ZipFile(io.BytesIO(emptied)) as source:
+        if POLICY_ENTRY not in source.namelist():
+            raise ValueError(f"model_zip: no {POLICY_ENTRY} (not an SB3 model)")
+        out = io.BytesIO()
+        with zipfile.ZipFile(out, "w", zipfile.ZIP_DEFLATED) as target:
+            for item in source.infolist():
+                data = source.read(item.filename)
+                if item.filename == POLICY_ENTRY:
+                    state = torch.load(io.BytesIO(data), map_location="cpu", weights_only=True)
+                    critic = [key for key in state if key.startswith(CRITIC_PREFIXES)]
+                    if not critic:
+                        raise ValueError("model_zip: no value-function tensors (not an actor-critic policy)")
+                    for key in critic:
+                        state[key] = torch.zeros_like(state[key])
                     buffer = io.BytesIO()
                     torch.save(state, buffer)
                     data = buffer.getvalue()
@@ -203,7 +254,7 @@ def ship(
 def main(argv: Sequence[str] | None = None) -> int:
     """Command-line entry point; returns the exit status."""
     parser = argparse.ArgumentParser(
-        prog="python -m agents.ship",
+        prog="python -m research.ship",
         description="Copy a chosen model, its statistics and its recipe's config into agents/policies.",
     )
     parser.add_argument("model", help="the chosen model (.zip), e.g. RUN/selected/model.zip")

@@ -1,4 +1,4 @@
-"""agents.select: every checkpoint of a run scored on validation seeds, the lowest mean chosen and copied."""
+"""research.select: every checkpoint of a run scored on validation seeds, the lowest mean chosen and copied."""
 
 from __future__ import annotations
 
@@ -11,9 +11,9 @@ import pytest
 import torch
 
 import seif_gym  # noqa: F401
-from agents.benchmark import HELD_OUT_SEED
+from agents.protocol import HELD_OUT_SEED
 from agents.checkpoints import behaviour_fingerprint, save_with_vecnormalize, vecnormalize_path
-from agents.select import best_of_runs, candidates, main, save_selected, select_checkpoints
+from research.select import best_of_runs, candidates, main, save_selected, select_checkpoints
 
 TINY = {"num_landmarks": 10, "max_episode_steps": 20}
 
@@ -105,7 +105,7 @@ def _fail_halfway(stage, monkeypatch):
     import shutil
     from pathlib import Path
 
-    import agents.select
+    import research.select
 
     copy, rename = shutil.copyfile, Path.rename
 
@@ -120,7 +120,7 @@ def _fail_halfway(stage, monkeypatch):
         return rename(self, target)
 
     if stage == "copy":
-        monkeypatch.setattr(agents.select.shutil, "copyfile", failing_copy)
+        monkeypatch.setattr(research.select.shutil, "copyfile", failing_copy)
     else:
         monkeypatch.setattr(Path, "rename", failing_rename)
 
@@ -252,7 +252,7 @@ def test_behaviour_fingerprint_is_the_policy_not_the_bytes(tmp_path):
 
 
 def test_a_candidate_with_an_earlier_ones_policy_is_scored_once_and_shares_its_figures(run, monkeypatch):
-    import agents.select as select_module
+    import research.select as select_module
     from agents.evaluate import evaluate_agents
 
     scored: list[list[str]] = []

@@ -1,5 +1,5 @@
-"""The coverage oracle (agents.oracle): the cheating explorer, as the tasks' yardstick
-(benchmarks/coverage_oracle.py) and as a privileged teacher for kickstarting."""
+"""The coverage oracle (research.oracle): the cheating explorer, as the tasks' yardstick
+(research/coverage_oracle.py) and as a privileged teacher for kickstarting."""
 
 from __future__ import annotations
 
@@ -12,8 +12,8 @@ import numpy as np
 import pytest
 
 import seif_gym  # noqa: F401
-from agents.imitation import collect_demonstrations, make_teacher
-from agents.oracle import CoverageOracle, oracle_action
+from research.imitation import collect_demonstrations, make_teacher
+from research.oracle import CoverageOracle, oracle_action
 
 PATH = Path(__file__).resolve().parents[1] / "benchmarks" / "coverage_oracle.py"
 
@@ -162,7 +162,7 @@ def test_as_a_teacher_it_labels_every_state_the_learner_drives_into():
 def test_module_doctests_pass():
     import doctest
 
-    import agents.oracle
+    import research.oracle
 
-    results = doctest.testmod(agents.oracle)
+    results = doctest.testmod(research.oracle)
     assert results.attempted > 0 and results.failed == 0

@@ -1,4 +1,4 @@
-"""A recipe judged over its training seeds: the crossed interval, its coverage, and ``python -m agents.recipe``."""
+"""A recipe judged over its training seeds: the crossed interval, its coverage, and ``python -m research.recipe``."""
 
 from __future__ import annotations
 

@@ -2,7 +2,7 @@
 
 Usage::
 
-    python -m agents.select runs/tll2_s1 runs/tll2_s2 runs/tll2_s3 --env SeifExploreClusteredBudget-v2 --workers 2
+    python -m research.select runs/tll2_s1 runs/tll2_s2 runs/tll2_s3 --env SeifExploreClusteredBudget-v2 --workers 2
 
 The benchmark's protocol (``docs/benchmark.md``) lets a run's checkpoints be
 compared only on the *validation* seeds (500 000 … 500 099); the held-out
@@ -33,7 +33,7 @@ naming the runs it was chosen from. A recipe that trains several runs per
 training seed and keeps the best on validation (``docs/experiments.md``,
 "best of two runs") is this one call per training seed::
 
-    python -m agents.select runs/r2_31_a runs/r2_31_b --env SeifExploreClusteredBudget-v2 --best-of-runs runs/r2_31
+    python -m research.select runs/r2_31_a runs/r2_31_b --env SeifExploreClusteredBudget-v2 --best-of-runs runs/r2_31
 """
 
 from __future__ import annotations
@@ -52,13 +52,13 @@ from typing import Any
 import gymnasium as gym
 
 from agents import BASELINES
-from agents.benchmark import HELD_OUT_SEEDS, VALIDATION_EPISODES, VALIDATION_SEED
 from agents.checkpoints import behaviour_fingerprint, vecnormalize_path
 from agents.cli import json_object
 from agents.evaluate import PAIRED_METRIC, evaluate_agents, signed, write_outputs
 from agents.parallel import Executor
 from agents.parallel import add_arguments as add_executor_arguments
 from agents.parallel import from_arguments as executor_from_arguments
+from agents.protocol import HELD_OUT_SEEDS, VALIDATION_EPISODES, VALIDATION_SEED
 from seif_gym.validation import as_count
 
 __all__ = [
@@ -341,7 +341,7 @@ def selection_table(selection: Mapping[str, Mapping[str, Any]], summary: Mapping
 
 def _parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
-        prog="python -m agents.select",
+        prog="python -m research.select",
         description="Score every checkpoint of training runs on the validation seeds and choose one per run.",
     )
     parser.add_argument("runs", nargs="+", help="run folders (agents.train --out)")

@@ -25,7 +25,7 @@ The teacher acts in a copy of the env it labels (``info_gain`` plans with
 that env's filter); it sees every step whoever drives, so its memory
 (visited cells, the arc it is holding) follows the episode.
 
->>> from agents.imitation import discounted_returns
+>>> from research.imitation import discounted_returns
 >>> discounted_returns([1.0, 1.0, 1.0], [False, False, True], gamma=0.5).tolist()
 [1.75, 1.5, 1.0]
 """
@@ -41,7 +41,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from agents.baselines import BASELINES, Agent, make_agent
-from agents.oracle import CoverageOracle
+from research.oracle import CoverageOracle
 from seif_gym.validation import as_count
 
 __all__ = [

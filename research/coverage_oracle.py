@@ -2,10 +2,10 @@
 
 Usage::
 
-    python benchmarks/coverage_oracle.py [--env SeifExploreClusteredBudget-v2 ...] [--episodes 100] [--seed 500000] \
+    python research/coverage_oracle.py [--env SeifExploreClusteredBudget-v2 ...] [--episodes 100] [--seed 500000] \
         [--env-kwargs '{"max_episode_steps": 500}']
 
-The *coverage oracle* (:mod:`agents.oracle`) reads what no agent may read (the true landmarks and
+The *coverage oracle* (:mod:`research.oracle`) reads what no agent may read (the true landmarks and
 the true pose, ``env.unwrapped.world``) and drives greedily to the unmapped
 landmark that is nearest counting one metre per radian of turn, until the
 filter has mapped every landmark (the registered ids' known association: the
@@ -33,10 +33,10 @@ import gymnasium as gym
 import numpy as np
 
 import seif_gym  # noqa: F401  (registers the envs)
-from agents.benchmark import VALIDATION_SEED
 from agents.cli import json_object
 from agents.evaluate import mean_ci
-from agents.oracle import CoverageOracle
+from agents.protocol import VALIDATION_SEED
+from research.oracle import CoverageOracle
 
 
 def run_oracle(env_id: str, seeds: Sequence[int], env_kwargs: Mapping[str, Any] | None = None) -> dict[str, Any]:

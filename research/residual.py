@@ -23,7 +23,7 @@ the agent acts in (the planner reads its filter).
 >>> import numpy as np
 >>> import seif_gym
 >>> from agents.baselines import make_agent
->>> from agents.residual import PLANNER_ACTION, PlannerResidualAction
+>>> from research.residual import PLANNER_ACTION, PlannerResidualAction
 >>> env = PlannerResidualAction(gym.make("SeifExplore-v2"))
 >>> planner_env = gym.make("SeifExplore-v2")
 >>> planner = make_agent("info_gain", planner_env)
@@ -48,6 +48,7 @@ import numpy as np
 
 from agents.baselines import InfoGainAgent
 from agents.entries import holds_entry, with_entry
+from agents.memories import PolicyEntry, register_policy_entry
 
 __all__ = ["PLANNER_ACTION", "PlannerResidual", "PlannerResidualAction", "uses_planner_action"]
 
@@ -147,3 +148,11 @@ class PlannerResidualAction(gym.Wrapper, gym.utils.RecordConstructorArgs):
         executed = self.residual.act(action)
         observation, reward, terminated, truncated, info = self.env.step(executed)
         return self.residual.observe(observation), reward, terminated, truncated, info
+
+
+# last, as in training (outermost): the planner sees the observation the inner entries made
+register_policy_entry(
+    PolicyEntry(
+        PLANNER_ACTION, uses_planner_action, PlannerResidual, PlannerResidualAction, order=2.0, needs_acting_env=True
+    )  # fmt: skip
+)

@@ -8,20 +8,20 @@ import gymnasium as gym
 import numpy as np
 import pytest
 
-import agents.residual
+import research.residual
 import seif_gym  # noqa: F401  (registers the envs)
 from agents.baselines import make_agent
-from agents.coverage_memory import CoverageMemoryObservation
+from research.coverage_memory import CoverageMemoryObservation
 from agents.evaluate import SB3Agent, run_episode
 from agents.memories import policy_memories
 from agents.networks import BeliefPolicy
-from agents.residual import PLANNER_ACTION, PlannerResidual, PlannerResidualAction, uses_planner_action
+from research.residual import PLANNER_ACTION, PlannerResidual, PlannerResidualAction, uses_planner_action
 
 LARGE = "SeifExploreLarge-v2"
 
 
 def test_module_doctest_passes():
-    results = doctest.testmod(agents.residual)
+    results = doctest.testmod(research.residual)
     assert results.attempted > 0 and results.failed == 0
 
 

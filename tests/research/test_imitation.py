@@ -1,4 +1,4 @@
-"""Kickstarting (agents.imitation): demonstrations, behaviour cloning, DAgger, and agents.train --kickstart."""
+"""Kickstarting (research.imitation): demonstrations, behaviour cloning, DAgger, and agents.train --kickstart."""
 
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ import torch
 
 import seif_gym  # noqa: F401
 from agents import make_agent
-from agents.imitation import (
+from research.imitation import (
     Demonstrations,
     behaviour_clone,
     collect_demonstrations,
@@ -21,7 +21,7 @@ from agents.imitation import (
 
 pytest.importorskip("rl_zoo3", reason="rl_zoo3 is in the train extra")
 
-from agents.train import build_parser, kickstart_seeds, prepare  # noqa: E402
+from research.kickstart import build_parser, kickstart_seeds, prepare  # noqa: E402
 
 ENV_KWARGS = {"num_landmarks": 10, "max_episode_steps": 25}
 #: a tiny PPO run: 2 envs of 10 landmarks, 25-step episodes
@@ -48,9 +48,9 @@ def small_env() -> gym.Env:
 def test_module_doctests_pass():
     import doctest
 
-    import agents.imitation
+    import research.imitation
 
-    results = doctest.testmod(agents.imitation)
+    results = doctest.testmod(research.imitation)
     assert results.attempted > 0 and results.failed == 0
 
 

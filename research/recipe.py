@@ -1,8 +1,8 @@
-r"""Judge a training recipe by its models, one per training seed: ``python -m agents.recipe``.
+r"""Judge a training recipe by its models, one per training seed: ``python -m research.recipe``.
 
 Usage::
 
-    python -m agents.recipe --runs runs/e9_held_out runs/eval_base_clu400 \
+    python -m research.recipe --runs runs/e9_held_out runs/eval_base_clu400 \
         --members s120,s121,s122,s123,s124,s125 [--baselines frontier,revisit,info_gain] [--out DIR]
 
 ``--runs`` are ``agents.evaluate --out`` folders of one env, env kwargs and
@@ -109,7 +109,7 @@ def recipe_table(result: Mapping[str, Any], digits: int = 3) -> str:
 
 
 def _parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="python -m agents.recipe",
+    parser = argparse.ArgumentParser(prog="python -m research.recipe",
                                      description="Judge a training recipe by its models, one per training seed, "
                                      "against the best baseline on the same episodes.")  # fmt: skip
     parser.add_argument("--runs", nargs="+", required=True, metavar="DIR",

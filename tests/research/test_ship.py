@@ -1,4 +1,4 @@
-"""agents.ship: a chosen model shipped with its statistics and config, its optimizer's moments emptied."""
+"""research.ship: a chosen model shipped with its statistics and config, its optimizer's moments emptied."""
 
 from __future__ import annotations
 
@@ -14,14 +14,14 @@ import torch
 import seif_gym  # noqa: F401
 from agents import ship as ship_module
 from agents.checkpoints import save_with_vecnormalize, vecnormalize_path
-from agents.ship import OPTIMIZER_ENTRY, empty_optimizer_moments, main, ship
+from research.ship import OPTIMIZER_ENTRY, empty_optimizer_moments, main, ship
 
 TINY = {"num_landmarks": 10, "max_episode_steps": 20}
 
 
 @pytest.fixture(scope="module")
 def chosen(tmp_path_factory) -> Path:
-    """A trained tiny model saved as agents.select leaves it: RUN/selected/{model.zip, vecnormalize.pkl, selection.json}."""
+    """A trained tiny model saved as research.select leaves it: RUN/selected/{model.zip, vecnormalize.pkl, selection.json}."""
     from stable_baselines3 import PPO
     from stable_baselines3.common.env_util import make_vec_env
     from stable_baselines3.common.vec_env import VecNormalize

@@ -1,0 +1,121 @@
+"""Sphinx configuration of the seif_gym documentation site.
+
+Build it with::
+
+    pip install -e ".[docs]"
+    sphinx-build -W --keep-going -b html docs docs/_build/html
+
+The stack is the one of the Farama Foundation's sites (Gymnasium's among them):
+Sphinx, MyST for the Markdown pages and the Furo theme. The task pages
+(``docs/tasks/``) and the leaderboards (``docs/benchmark/leaderboard*.md``) are
+written at build time by the extensions in ``docs/_ext/`` and are not kept in
+git.
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+DOCS = Path(__file__).resolve().parent
+ROOT = DOCS.parent
+# the package is imported from the checkout, installed or not, so that the API pages are the code's
+sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(DOCS / "_ext"))
+
+import seif_gym  # noqa: E402
+
+project = "seif_gym"
+author = "the seif_gym authors"
+copyright = "the seif_gym authors, MIT licence"  # noqa: A001
+release = seif_gym.__version__
+version = ".".join(release.split(".")[:2])
+
+extensions = [
+    "myst_parser",
+    "sphinx.ext.autodoc",
+    "sphinx.ext.napoleon",
+    "sphinx.ext.viewcode",
+    # math as MathML written at build time (no script from a CDN: the pages work offline)
+    "mathml",
+    # Markdown docstrings (the envs') and those inherited from Gymnasium, in the API pages
+    "docstrings",
+    # docs/tasks/*.md from the gymnasium registry, docs/benchmark/leaderboard*.md from the json files
+    # "task_pages",
+    # "leaderboard_pages",
+    # the toctree's pages that other pages are still being written for
+    "pending_pages",
+]
+
+source_suffix = {".md": "markdown", ".rst": "restructuredtext"}
+root_doc = "index"
+exclude_patterns = [
+    "_build",
+    "Thumbs.db",
+    ".DS_Store",
+    # prose included into the generated leaderboards, not pages of their own
+    "benchmark/*_intro.md",
+    # GIF cache of the task pages
+    "tasks/_gifs",
+]
+templates_path = ["_templates"]
+html_static_path = ["_static"]
+
+# -- MyST ------------------------------------------------------------------------------------------
+myst_enable_extensions = ["amsmath", "colon_fence", "deflist", "dollarmath", "fieldlist", "attrs_inline"]
+# GitHub's anchors for headings down to ###, so that a page's `other.md#a-heading` links work here too
+myst_heading_anchors = 3
+
+# -- API pages -------------------------------------------------------------------------------------
+autodoc_default_options = {"members": True, "show-inheritance": True, "member-order": "bysource"}
+autodoc_typehints = "signature"
+autodoc_preserve_defaults = True
+autodoc_class_signature = "separated"
+napoleon_google_docstring = False
+napoleon_numpy_docstring = True
+napoleon_use_rtype = False
+napoleon_use_ivar = True
+
+# -- math ------------------------------------------------------------------------------------------
+html_math_renderer = "mathml"
+
+# -- HTML ------------------------------------------------------------------------------------------
+html_theme = "furo"
+html_title = "seif_gym"
+html_short_title = "seif_gym"
+html_css_files = ["custom.css"]
+html_show_sourcelink = False
+html_copy_source = False
+html_theme_options = {
+    "source_repository": "",
+    "navigation_with_keys": True,
+}
+pygments_style = "sphinx"
+pygments_dark_style = "monokai"
+
+# -- pages being written ---------------------------------------------------------------------------
+# Toctree entries whose pages do not exist yet are left out while they are missing (docs/_ext/pending_pages.py).
+# Empty once every page is in: a page listed in a toctree and missing is then a build error.
+pending_pages = [
+    "getting_started",
+    "environment",
+    "filters/index",
+    "filters/math",
+    "filters/fidelity",
+    "filters/robustness",
+    "data/index",
+    "data/victoria_park",
+    "data/mrclam",
+    "training/index",
+    "training/pretrained",
+    "training/ray",
+    "benchmark/protocol",
+    "benchmark/leaderboard",
+    "benchmark/leaderboard_v1",
+    "performance",
+    "testing",
+    "contributing",
+    "faq",
+    "changelog",
+    "research/index",
+]

@@ -1,46 +1,15 @@
 """seif_gym: a Gymnasium environment for learning active SLAM with a SEIF in the loop.
 
-Importing the package registers the environments, so both
-``gym.make("SeifExplore-v2")`` (after ``import seif_gym``) and
-``gym.make("seif_gym:SeifExplore-v2")`` work.
+Importing the package registers every task (:data:`VARIANTS`) with gymnasium,
+each with the native vector env as its vector entry point, so that
+``gym.make("SeifExplore-v2")`` and ``gym.make_vec("SeifExplore-v2", num_envs=8)``
+work after ``import seif_gym``, and ``gym.make("seif_gym:SeifExplore-v2")``
+without it. The env is :class:`seif_gym.envs.explore.SeifExploreEnv`; the
+filter library, usable alone, is :mod:`seif_gym.slam`.
 
-================================= ================================================ ==================
-id                                what changes (kwargs of ``SeifExploreEnv``)      max_episode_steps
-================================= ================================================ ==================
-``SeifExplore-v2``                defaults: 20 m arena, 30 uniform landmarks       400
-``SeifExploreLoop-v2``            ``layout="loop"``, 40 landmarks on a ring: the   400
-                                  map only stays accurate if the loop is closed
-``SeifExploreClustered-v2``       ``layout="clustered"``: empty space between      400
-                                  clusters of landmarks
-``SeifExploreLarge-v2``           40 m arena, 120 landmarks                        1000
-``SeifExploreLoopBudget-v2``      the loop's world with a budget of 150 steps:     150
-                                  the explorers that tie on the 400-step loop
-                                  separate (``docs/benchmark.md``, Tasks)
-``SeifExploreBudget-v2``          the uniform world with a budget of 150 steps     150
-``SeifExploreClusteredBudget-v2`` the clusters with a budget of 100 steps          100
-``SeifExploreMRCLAM-v1``          MRCLAM Dataset 6's landmarks, walls, robots,     1200
-                                  camera and calibrated noise
-                                  (``seif_gym/envs/mrclam.py``)
-================================= ================================================ ==================
-
-Versions
---------
-* ``-v2`` (seif_gym 0.3): the sensor does not see a landmark within 0.3 m
-  (``sensor_min_range=0.3``). In ``-v0``/``-v1`` a robot driving over a
-  landmark measures it at millimetres; the bearing's information grows as
-  ``1/r^2`` and can make the SEIF's information matrix indefinite (a
-  ``LinAlgError``). Everything else as ``-v1``.
-* ``-v1`` (seif_gym 0.2): the filter's mean recovery is the wavefront
-  recovery (``mean_recovery="wavefront"``, the SEIF's and ESEIF's default),
-  which keeps up with loop closures (``benchmarks/fidelity.py``). With
-  ``data_association="ml"`` it keeps 0.1's individual-compatibility
-  associator (``ml_association="individual"``); the joint-compatibility one
-  (``"joint"``) is opt-in: it closes the EKF's loops but not yet the SEIF's,
-  and in the env it defers (discards) many lone revisits.
-* ``-v0`` (seif_gym 0.1): Thrun's round-robin amortized recovery
-  (``mean_recovery="amortized"``) and the individual-compatibility associator
-  (``ml_association="individual"``), kept so that results measured on it
-  (the shipped policies, the robustness findings) can be reproduced bit for bit.
+The tasks, their arguments and their versions are documented on the docs'
+Tasks pages (one page per registered id) and in ``CHANGELOG.md``, section
+"Environment versions".
 """
 
 from gymnasium.envs.registration import register, registry

@@ -362,32 +362,8 @@ class SeifExploreEnv(gym.Env):
 
     ## Version History
 
-    * v2 (seif_gym 0.3): the sensor does not see landmarks within 0.3 m
-      (`sensor_min_range`). Before, a robot driving over a landmark measured
-      it at millimetres, where the bearing's information grows as `1/r^2`: the
-      SEIF's information matrix reached 1e11 and turned indefinite (a training
-      run on `SeifExploreClusteredBudget-v1` stopped on the `LinAlgError` of
-      `info["pose_nees"]`). Everything else as in v1.
-    * Budget tasks (seif_gym 0.3): `SeifExploreLoopBudget`, `SeifExploreBudget`
-      and `SeifExploreClusteredBudget`, at every version: the loop, uniform and
-      clustered layouts with 150, 150 and 100 steps, where the 400-step tasks
-      saturate (`docs/benchmark.md`, Tasks).
-    * v0 of `SeifExploreMRCLAM`: the MRCLAM Dataset 6 arena, its surveyed
-      landmarks, the robots' limits and camera, the calibrated noise (issue 11).
-    * Keyword arguments `arena_extent`, `landmark_positions` (and the layout
-      `"fixed"`), `motion_model`, `range_noise`, `range_error_time` and `innovation_gate` (seif_gym 0.3): the
-      per-second motion noise and range-dependent range noise calibrated on
-      real robots (`Calibration.env_kwargs()` of
-      `seif_gym.datasets.mrclam_calibration`), and the filters' innovation
-      gate. Their defaults are the former models and no gate: every
-      registered id computes what it did.
-    * v1 (seif_gym 0.2): the SEIF and ESEIF recover their mean with the
-      wavefront recovery (`mean_recovery="wavefront"`), which keeps up with
-      loop closures. `info["pose_nees"]` uses the filter's own pose covariance
-      (in every version; `pose_nees_blanket` holds the former value).
-    * v0 (seif_gym 0.1): Thrun's round-robin amortized recovery
-      (`mean_recovery="amortized"`); still registered, reproduces 0.1's
-      observations and rewards bit for bit (with `data_association="ml"` too).
+    Every version of the registered ids, and what changed in each, is listed
+    in `CHANGELOG.md`, section "Environment versions".
     """
 
     metadata = {"render_modes": ["human", "rgb_array"], "render_fps": 10}

@@ -117,7 +117,7 @@ def for_acting(model_zip: bytes) -> bytes:
 
     Acting (``predict``) reads the actor alone: the features extractor of the policy, the policy
     network, the action net and, for a recurrent policy, the actor's LSTM. The value function's tensors
-    (:data:`CRITIC_PREFIXES`) keep their shapes, so Stable-Baselines3 still loads the file, but hold
+    (:data:`CRITIC_PREFIXES`, but those that share their storage with the actor's) keep their shapes, so Stable-Baselines3 still loads the file, but hold
     zeros, which compress to nothing: the file acts exactly as the original and is no starting point
     for further training (its value function and optimizer restart from zero).
 
@@ -138,7 +138,15 @@ def for_acting(model_zip: bytes) -> bytes:
                 data = source.read(item.filename)
                 if item.filename == POLICY_ENTRY:
                     state = torch.load(io.BytesIO(data), map_location="cpu", weights_only=True)
-                    critic = [key for key in state if key.startswith(CRITIC_PREFIXES)]
+                    # a tensor the actor shares (the extractors may share layers) stays as it is
+                    actor = {
+                        v.untyped_storage().data_ptr() for k, v in state.items() if not k.startswith(CRITIC_PREFIXES)
+                    }
+                    critic = [
+                        key
+                        for key in state
+                        if key.startswith(CRITIC_PREFIXES) and state[key].untyped_storage().data_ptr() not in actor
+                    ]
                     if not critic:
                         raise ValueError("model_zip: no value-function tensors (not an actor-critic policy)")
                     for key in critic:

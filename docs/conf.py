@@ -41,7 +41,7 @@ extensions = [
     # Markdown docstrings (the envs') and those inherited from Gymnasium, in the API pages
     "docstrings",
     # docs/tasks/*.md from the gymnasium registry, docs/benchmark/leaderboard*.md from the json files
-    # "task_pages",
+    "task_pages",
     # "leaderboard_pages",
     # the toctree's pages that other pages are still being written for
     "pending_pages",

@@ -24,12 +24,22 @@ from sphinx.writers.html5 import HTML5Translator
 logger = logging.getLogger(__name__)
 # TeX's spacing classes, which docutils does not know: the braced argument is kept as it is
 SPACING_CLASSES = re.compile(r"\\math(?:rel|bin|ord|open|close|punct)(?=\s*\{)")
+# amsmath's commands that docutils lacks -> the ones it has
+SYNONYMS = [(re.compile(r"\\dots(?![a-zA-Z])"), r"\\ldots")]
+
+
+def supported(latex: str) -> str:
+    """``latex`` with the commands docutils does not know replaced by equivalents it knows."""
+    latex = SPACING_CLASSES.sub("", latex)
+    for pattern, replacement in SYNONYMS:
+        latex = pattern.sub(replacement, latex)
+    return latex
 
 
 def to_mathml(latex: str, node: nodes.Node, block: bool) -> str | None:
     """The MathML of ``latex``, or None (and a warning at ``node``) where docutils cannot convert it."""
     try:
-        return latex2mathml.tex2mathml(SPACING_CLASSES.sub("", latex), as_block=block)
+        return latex2mathml.tex2mathml(supported(latex), as_block=block)
     except Exception as error:  # docutils raises SyntaxError, and others, on unsupported LaTeX
         logger.warning("cannot write this formula as MathML (%s): %s", error, latex, location=node, type="mathml")
         return None

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 import seif_gym
-from agents import benchmark, protocol
+from agents import benchmark, loading, protocol
 
 
 def test_default_variants_are_every_layout_of_a_version():
@@ -37,7 +37,7 @@ def test_shipped_policy_fits_the_default_variant():
         record = policy.path.with_suffix("") / "selection.json"
         if record.is_file():
             assert json.loads(record.read_text())["env_id"] == policy.task, policy.path.name
-    assert (benchmark.POLICY_DIR / "ppo_lstm_loop_v2" / "selection.json").is_file()
+    assert (loading.POLICY_DIR / "ppo_lstm_loop_v2" / "selection.json").is_file()
 
 
 def test_policy_fits_reads_a_recurrent_policy(tmp_path):

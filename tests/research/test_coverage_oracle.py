@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import importlib.util
 import math
-from pathlib import Path
 
 import gymnasium as gym
 import numpy as np
@@ -15,16 +14,10 @@ import seif_gym  # noqa: F401
 from research.imitation import collect_demonstrations, make_teacher
 from research.oracle import CoverageOracle, oracle_action
 
-PATH = Path(__file__).resolve().parents[1] / "benchmarks" / "coverage_oracle.py"
-
 
 @pytest.fixture(scope="module")
 def oracle():
-    spec = importlib.util.spec_from_file_location("coverage_oracle", PATH)
-    assert spec is not None and spec.loader is not None
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return importlib.import_module("research.coverage_oracle")
 
 
 def test_oracle_action_steers_to_the_cheapest_unmapped_landmark():

@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from agents import evaluate, recipe
+from agents import evaluate
+from research import recipe
 
 TASK = {"episodes": 3, "seed": 5, "env_id": "SeifExplore-v1", "env_kwargs": {"max_episode_steps": 12}}
 

@@ -12,7 +12,7 @@ import pytest
 import torch
 
 import seif_gym  # noqa: F401
-from agents import ship as ship_module
+from research import ship as ship_module
 from agents.checkpoints import save_with_vecnormalize, vecnormalize_path
 from research.ship import OPTIMIZER_ENTRY, empty_optimizer_moments, main, ship
 

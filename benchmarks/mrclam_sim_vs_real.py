@@ -1,12 +1,15 @@
 """How SeifExploreMRCLAM-v0's readings compare with the real logs': the EKF's innovations on both.
 
-    python benchmarks/mrclam_sim_vs_real.py [--data ../shared/data/mrclam/MRCLAM_Dataset6] [--episodes 5]
+    python benchmarks/mrclam_sim_vs_real.py [--data DIR] [--episodes 5]
+
+(``--data``: an MRCLAM Dataset 6 folder; default ``$SEIF_GYM_DATA/mrclam/MRCLAM_Dataset6``;
+without data, only the simulated rows are printed.)
 
 The same filter (the EKF, with the calibrated models and *no* noise
 inflation, every reading used, no gate) runs over
 
 * the five robots' real logs as episodes
-  (``seif_gym.datasets.mrclam_episodes.log_to_episode``, ``noise_inflation=1``,
+  (``seif_gym.datasets.mrclam.episodes.log_to_episode``, ``noise_inflation=1``,
   ``min_interval=0``, ``innovation_gate=None``), and
 * episodes of ``SeifExploreMRCLAM-v0`` driven by the ``frontier`` baseline
   (seeds 0 .. N-1, full length),
@@ -24,7 +27,6 @@ import argparse
 import math
 import sys
 import time
-from pathlib import Path
 
 import gymnasium as gym
 import numpy as np
@@ -34,7 +36,6 @@ from agents.evaluate import build_agent
 from agents.robustness import record_episode
 from seif_gym.episodes import Episode, EpisodeRecorder, replay
 
-DEFAULT_DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "mrclam" / "MRCLAM_Dataset6"
 QUANTILES = (0.5, 0.9, 0.95, 0.99)
 
 
@@ -59,25 +60,27 @@ def summary(label: str, d2: np.ndarray) -> str:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--data", default=str(DEFAULT_DATA), help="MRCLAM Dataset 6 folder")
+    parser.add_argument("--data", default=None,
+                        help="MRCLAM Dataset 6 folder (default: $SEIF_GYM_DATA/mrclam/MRCLAM_Dataset6)")  # fmt: skip
     parser.add_argument("--episodes", type=int, default=5, help="simulated episodes (default 5)")
     args = parser.parse_args(argv)
     started = time.perf_counter()
     print("| data | readings | mean d² | median | 90% | 95% | 99% | beyond 13.8 |")
     print("|---|--:|--:|--:|--:|--:|--:|--:|")
     print("| χ²₂ (white errors, consistent filter) | | 2.00 | 1.39 | 4.61 | 5.99 | 9.21 | 0.1% |")
-    if Path(args.data).is_dir():
-        from seif_gym.datasets import mrclam
-        from seif_gym.datasets.mrclam_calibration import DATASET6, Calibration
-        from seif_gym.datasets.mrclam_episodes import EpisodeConversion, log_to_episode
+    from seif_gym.datasets import DataNotFoundError, mrclam
+    from seif_gym.datasets.mrclam.calibration import DATASET6, Calibration
+    from seif_gym.datasets.mrclam.episodes import EpisodeConversion, log_to_episode
 
+    try:
+        logs = mrclam.load_all(args.data)
+    except DataNotFoundError as error:
+        print(f"(no real data: {error})", file=sys.stderr)
+    else:
         calibration = Calibration.load(DATASET6)
         plain = EpisodeConversion(noise_inflation=1.0, min_interval=0.0, innovation_gate=None, filter="ekf")
-        logs = mrclam.load_all(args.data)
         real = np.concatenate([innovations(log_to_episode(log, calibration, plain)) for log in logs.values()])
         print(summary("real logs, 5 robots", real))
-    else:
-        print(f"(no real data at {args.data})", file=sys.stderr)
     simulated = []
     for seed in range(args.episodes):
         env = EpisodeRecorder(gym.make("SeifExploreMRCLAM-v0"))

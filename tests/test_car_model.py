@@ -1,7 +1,7 @@
 """Tests of ``seif_gym.slam.car_model``: the Ackermann model of the Victoria Park car.
 
-The equations are those of the data README (``shared/data/victoria_park/README.md``,
-"Vehicle model constants"). Jacobians are checked against central
+The equations are those of ``docs/data/victoria_park.md`` ("The vehicle
+model"). Jacobians are checked against central
 differences with step ``H``: the truncation error is ``H**2`` times a third
 derivative (tiny for these smooth functions at these scales) and the
 rounding error ``~ eps |value| / H``, so ``1e-7`` absolute is ample for

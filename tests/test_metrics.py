@@ -11,7 +11,7 @@ import pytest
 import scipy.stats
 
 import seif_gym.envs.explore as explore
-import seif_gym.evaluate as harness
+import seif_gym.harness as harness
 import seif_gym.observation as observation
 import seif_gym.render as render
 import seif_gym.slam.simulation as simulation

@@ -83,11 +83,9 @@ def test_uniform_layout_fills_narrow_walls():
 
 
 def test_describe_world_measures_simulated_logs():
-    from mrclam_fixtures import TRUTH  # tests/ is on sys.path under pytest
+    from seif_gym.datasets.mrclam import calibration as mc
 
-    from seif_gym.datasets import mrclam_calibration as mc
-
-    logs = mc.simulate_logs(TRUTH, np.random.default_rng(2), robots=(1,), duration=120.0, fov=1.1, max_range=6.0, outlier_fraction=0.0,
+    logs = mc.simulate_logs(mc.Calibration.load(mc.DATASET6), np.random.default_rng(2), robots=(1,), duration=120.0, fov=1.1, max_range=6.0, outlier_fraction=0.0,
                             frame_period=0.3)  # fmt: skip
     world = mc.describe_world(list(logs.values()))
     log = logs[1]

@@ -1,4 +1,4 @@
-"""The filter robustness harness (``agents.robustness`` records, ``seif_gym.evaluate`` replays and scores) and the
+"""The filter robustness harness (``agents.robustness`` records, ``seif_gym.harness`` replays and scores) and the
 adversarial reward (``agents.adversary``)."""
 
 from __future__ import annotations
@@ -11,9 +11,9 @@ import pytest
 
 import seif_gym  # noqa: F401
 from agents.robustness import evaluate, main
-from seif_gym import evaluate as harness
+from seif_gym import harness
 from seif_gym.episodes import Episode, EpisodeRecorder, replay
-from seif_gym.evaluate import RESULT_COLUMNS, TIMESERIES_KEYS, FilterSpec, parse_filter
+from seif_gym.harness import RESULT_COLUMNS, TIMESERIES_KEYS, FilterSpec, parse_filter
 from seif_gym.metrics import map_nees
 from seif_gym.slam import FILTERS
 
@@ -126,9 +126,9 @@ def test_relative_nees_is_anchor_free():
 
 
 def test_saved_episodes_score_as_when_recorded(harness_run, tmp_path, capsys):
-    """``python -m seif_gym.evaluate --episodes DIR`` (no agents) gives the recording run's rows, timings aside."""
+    """``python -m seif_gym.harness --episodes-dir DIR`` (no agents) gives the recording run's rows, timings aside."""
     out = tmp_path / "rescored"
-    assert harness.main(["--episodes", str(harness_run / "episodes"), "--filters", "seif-k2,seif-k8,ekf",
+    assert harness.main(["--episodes-dir", str(harness_run / "episodes"), "--filters", "seif-k2,seif-k8,ekf",
                          "--out", str(out), "--quiet"]) == 0  # fmt: skip
     assert capsys.readouterr().err == ""  # --quiet: nothing on stderr
 
@@ -146,7 +146,7 @@ def test_the_recording_options_moved_to_agents_robustness(capsys):
         harness.main(["--policies", "random", "--seeds", "2"])
     assert "python -m agents.robustness" in capsys.readouterr().err
     with pytest.raises(SystemExit):
-        harness.main(["--episodes", "/no/such/folder"])
+        harness.main(["--episodes-dir", "/no/such/folder"])
 
 
 def test_parse_filter():

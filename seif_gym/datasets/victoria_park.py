@@ -2,10 +2,12 @@ r"""The Victoria Park dataset (ACFR, Guivant & Nebot): loader, GPS ground truth 
 
 A utility car drove ~4 km through Victoria Park, Sydney, logging wheel-encoder
 speed and steering (40 Hz), a SICK laser (trees extracted as range, bearing,
-diameter; 4.7 Hz) and a failing GPS. The data are *not* in the package: every
-function takes the directory of the project's compact copy
-(``shared/data/victoria_park``, whose README documents the arrays). Cite
-J. Guivant, E. Nebot, IEEE T-RA 17(3), 2001 when you use them.
+diameter; 4.7 Hz) and a failing GPS. The data are *not* in the package: the
+readers take a compact copy, ``victoria_park.npz`` (:data:`FILE_NAME`; its
+arrays, how it is derived from the publisher's MATLAB files and its SHA-256
+are in ``docs/data/victoria_park.md``), from ``data=`` (``--data``), else from
+``$SEIF_GYM_DATA/victoria_park/``. Cite J. Guivant, E. Nebot, IEEE T-RA 17(3),
+2001 when you use them.
 
 * :func:`load` returns typed, read-only arrays (:class:`VictoriaPark`):
   times on the dataset clock in ms and s, bearings converted to the robot
@@ -17,8 +19,8 @@ J. Guivant, E. Nebot, IEEE T-RA 17(3), 2001 when you use them.
   correspondences (:class:`~seif_gym.slam.association.Associator`).
 * Command line::
 
-      python -m seif_gym.datasets.victoria_park --data ../shared/data/victoria_park \
-          --filter seif --out OUT.npz [--steps N] [--plot OUT.png] [--signature] [--compare RUN.npz]
+      python -m seif_gym.datasets.victoria_park [--data DIR] --filter seif --out OUT.npz \
+          [--steps N] [--plot OUT.png] [--signature] [--compare RUN.npz]
 
   writes ``OUT.npz`` (``time`` (N,) s, ``pose`` (N, 3) the estimated laser
   pose after every odometry step and every scan; ``landmarks`` (M, 2) the
@@ -28,13 +30,8 @@ J. Guivant, E. Nebot, IEEE T-RA 17(3), 2001 when you use them.
   map over the GPS with the time per step, and prints the time per step, the
   total time, the landmarks mapped and the RMSE against the GPS.
 
-Settings (:class:`RunConfig`) were chosen as follows, not fitted to the GPS:
-the measurement noise is about twice the innovation spread of the associated
-detections (0.2-0.3 m, 0.4-0.7 degrees, heavy-tailed); the steering noise is
-a typical steering-encoder accuracy. About fifteen variants were run once
-each to check that the result is not a lucky corner (the report of issue #6
-lists them with their RMSE); the signature gate (``--signature``) changed
-little on this run and is off by default.
+The settings (:class:`RunConfig`) are not fitted to the GPS; how they were
+chosen, and the results, are in ``docs/data/victoria_park.md``.
 """
 
 from __future__ import annotations
@@ -52,6 +49,8 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from seif_gym.datasets._arrays import frozen
+from seif_gym.datasets._files import DATA_ENV, DataFormatError, check_vector, data_root, load_npz, not_found, run_cli
+from seif_gym.datasets._geometry import rigid_alignment
 from seif_gym.progress import Progress
 from seif_gym.threads import limit_blas_threads  # noqa: F401  (public here before seif_gym.threads existed)
 from seif_gym.type_aliases import FloatArray, IntArray
@@ -65,7 +64,9 @@ if TYPE_CHECKING:
 
 #: File name of the compact NumPy copy inside the data directory.
 FILE_NAME = "victoria_park.npz"
-#: SHA-256 of that file, from the data README.
+#: Folder of that file under ``$SEIF_GYM_DATA``.
+FOLDER = "victoria_park"
+#: SHA-256 of that file (``docs/data/victoria_park.md``).
 SHA256 = "075e12eb87e94033e9c2fa32ec02397ae19bfa59b20dffef89ff45ed1ea20de8"
 _ARRAYS = (
     "odo_time_ms", "odo_speed", "odo_steering", "laser_time_ms", "det_scan", "det_range",
@@ -183,24 +184,95 @@ class VictoriaPark:
     path: Path
 
 
-def _resolve(path: str | os.PathLike[str]) -> Path:
-    path = Path(path)
-    if path.is_dir():
-        path = path / FILE_NAME
-    if not path.is_file():
-        raise FileNotFoundError(f"Victoria Park data not found: {path} (give the directory holding {FILE_NAME})")
-    return path
+#: How to obtain the data, for the error of data not found.
+HOW_TO_OBTAIN = (
+    f"The data are not part of seif_gym: obtain the Victoria Park dataset from its publisher (ACFR, University of "
+    f"Sydney), convert it to {FILE_NAME} as docs/data/victoria_park.md describes, and pass its folder as data= "
+    f"(--data DIR) or put it at ${DATA_ENV}/{FOLDER}/{FILE_NAME}"
+)
+#: The integer arrays of the file, then the real-valued ones.
+_INT_ARRAYS = ("odo_time_ms", "laser_time_ms", "gps_time_ms", "det_scan")
+_FLOAT_ARRAYS = ("odo_speed", "odo_steering", "det_range", "det_bearing", "det_diameter", "gps_x", "gps_y")
 
 
-def load(path: str | os.PathLike[str], *, verify: bool = False) -> VictoriaPark:
-    """Load the Victoria Park copy at ``path`` (its directory, or the ``.npz`` itself).
+def locate(data: str | os.PathLike[str] | None = None) -> Path:
+    """The ``victoria_park.npz`` that ``data`` names, else the one under ``$SEIF_GYM_DATA``.
 
     Parameters
     ----------
-    path : str or Path
-        ``shared/data/victoria_park`` or ``.../victoria_park.npz``.
+    data : str or Path, optional
+        The ``.npz`` itself, the folder holding it, or a folder holding
+        ``victoria_park/victoria_park.npz`` (a ``SEIF_GYM_DATA`` folder).
+        Without it, ``$SEIF_GYM_DATA/victoria_park/victoria_park.npz``.
+
+    Raises
+    ------
+    DataNotFoundError
+        Nothing there, or neither ``data`` nor ``SEIF_GYM_DATA`` given; the
+        message says how to obtain the data and where to put them.
+    """
+    if data is None:
+        root = data_root()
+        if root is None:
+            raise not_found("Victoria Park data", f"no data= (--data) given and {DATA_ENV} is not set", HOW_TO_OBTAIN)
+        file = root / FOLDER / FILE_NAME
+        if not file.is_file():
+            raise not_found("Victoria Park data", f"{DATA_ENV}={root} has no {FOLDER}/{FILE_NAME}", HOW_TO_OBTAIN)
+        return file
+    path = Path(data)
+    if path.is_file():
+        return path
+    if path.is_dir():
+        for file in (path / FILE_NAME, path / FOLDER / FILE_NAME):
+            if file.is_file():
+                return file
+        raise not_found("Victoria Park data", f"no {FILE_NAME} in {path} (nor in {path / FOLDER})", HOW_TO_OBTAIN)
+    raise not_found("Victoria Park data", f"{path} does not exist", HOW_TO_OBTAIN)
+
+
+def _check(file: Path, d: dict[str, NDArray]) -> None:
+    """Dtypes, shapes, finiteness, order and ranges of the arrays of ``file`` (DataFormatError naming the array)."""
+    for name in _INT_ARRAYS:
+        check_vector(file, name, d[name], "int")
+    for name in _FLOAT_ARRAYS:
+        check_vector(file, name, d[name], "float")
+    for prefix, names, reference in (
+        ("odo", ("odo_speed", "odo_steering"), "odo_time_ms"),
+        ("gps", ("gps_x", "gps_y"), "gps_time_ms"),
+        ("det", ("det_range", "det_bearing", "det_diameter"), "det_scan"),
+    ):
+        n = len(d[reference])
+        for name in names:
+            if d[name].shape != (n,):
+                raise DataFormatError(
+                    f"{file}: array {name!r} has shape {d[name].shape}, expected ({n},) like the other {prefix}_ arrays"
+                )
+    for name in ("odo_time_ms", "gps_time_ms"):
+        if len(d[name]) == 0:
+            raise DataFormatError(f"{file}: array {name!r} is empty")
+    for name in ("odo_time_ms", "laser_time_ms", "gps_time_ms"):
+        back = np.flatnonzero(np.diff(d[name]) < 0)
+        if len(back):
+            raise DataFormatError(f"{file}: array {name!r} is not sorted (index {back[0] + 1} goes back in time)")
+    scan_index = d["det_scan"]
+    n_scan = len(d["laser_time_ms"])
+    if len(scan_index) and (np.any(np.diff(scan_index) < 0) or scan_index[0] < 0 or scan_index[-1] >= n_scan):
+        raise DataFormatError(f"{file}: array 'det_scan' must be sorted scan indices in [0, {n_scan})")
+    bad = np.flatnonzero(d["det_range"] <= 0)
+    if len(bad):
+        raise DataFormatError(f"{file}: array 'det_range' has a range <= 0 at index {bad[0]}")
+
+
+def load(data: str | os.PathLike[str] | None = None, *, verify: bool = False) -> VictoriaPark:
+    """Load the Victoria Park copy (``victoria_park.npz``).
+
+    Parameters
+    ----------
+    data : str or Path, optional
+        The ``.npz``, its folder, or a ``SEIF_GYM_DATA`` folder (:func:`locate`);
+        without it, ``$SEIF_GYM_DATA/victoria_park/victoria_park.npz``.
     verify : bool
-        Check the file's SHA-256 against the data README's first.
+        Check the file's SHA-256 against :data:`SHA256` first.
 
     Returns
     -------
@@ -211,31 +283,23 @@ def load(path: str | os.PathLike[str], *, verify: bool = False) -> VictoriaPark:
 
     Raises
     ------
-    FileNotFoundError
-        No data at ``path``.
-    ValueError
-        A missing array, inconsistent shapes, or (with ``verify``) a checksum mismatch.
+    DataNotFoundError
+        No data found (a ``FileNotFoundError``; the message says how to obtain them).
+    DataFormatError
+        A ``ValueError`` naming the file and the array: not a readable
+        ``.npz`` (corrupt, truncated, pickled data), a missing array, a wrong
+        dtype, shape or order, a non-finite value, or (with ``verify``) a
+        checksum mismatch.
     """
-    file = _resolve(path)
+    file = locate(data)
     if verify:
         digest = hashlib.sha256(file.read_bytes()).hexdigest()
         if digest != SHA256:
-            raise ValueError(f"{file}: SHA-256 {digest} does not match the data README's {SHA256}")
-    with np.load(file, allow_pickle=False) as data:
-        missing = [name for name in _ARRAYS if name not in data.files]
-        if missing:
-            raise ValueError(f"{file} lacks the array(s) {missing}")
-        d = {name: data[name] for name in _ARRAYS}
-    n_odo, n_scan, n_gps = len(d["odo_time_ms"]), len(d["laser_time_ms"]), len(d["gps_time_ms"])
-    for prefix, names, n in (("odo", ("odo_speed", "odo_steering"), n_odo), ("gps", ("gps_x", "gps_y"), n_gps),
-                             ("det", ("det_range", "det_bearing", "det_diameter"), len(d["det_scan"]))):  # fmt: skip
-        for name in names:
-            if d[name].shape != (n,):
-                raise ValueError(f"{name} has shape {d[name].shape}, expected ({n},) like the other {prefix}_ arrays")
+            raise DataFormatError(f"{file}: SHA-256 {digest} does not match the published copy's {SHA256}")
+    d = load_npz(file, _ARRAYS)
+    _check(file, d)
     scan_index = d["det_scan"].astype(np.int64)
-    if len(scan_index) and (np.any(np.diff(scan_index) < 0) or scan_index[0] < 0 or scan_index[-1] >= n_scan):
-        raise ValueError("det_scan must be sorted scan indices in [0, number of scans)")
-    start = np.searchsorted(scan_index, np.arange(n_scan + 1))
+    start = np.searchsorted(scan_index, np.arange(len(d["laser_time_ms"]) + 1))
 
     def clock(ms: ArrayLike) -> tuple[IntArray, FloatArray]:
         return frozen(ms, np.int64), frozen(np.asarray(ms, dtype=np.float64) / 1000.0, np.float64)
@@ -291,23 +355,6 @@ def gps_inliers(data: VictoriaPark, *, jump: float = 1.0, max_interval: float = 
     keep[:-1] &= ~bad_pair
     keep[1:] &= ~bad_pair
     return keep
-
-
-def rigid_alignment(source: FloatArray, target: FloatArray) -> tuple[FloatArray, FloatArray]:
-    """Rotation ``R`` (2, 2) and translation ``t`` (2,) minimising ``sum |R source_i + t - target_i|^2``.
-
-    Kabsch/Umeyama without scale; a proper rotation (``det R = +1``).
-    """
-    source = np.asarray(source, dtype=np.float64)
-    target = np.asarray(target, dtype=np.float64)
-    if source.shape != target.shape or source.ndim != 2 or source.shape[1] != 2 or len(source) < 2:
-        raise ValueError(f"need two (n, 2) point sets with n >= 2, got {source.shape} and {target.shape}")
-    mean_s, mean_t = source.mean(0), target.mean(0)
-    cross = (target - mean_t).T @ (source - mean_s)
-    u, _, vt = np.linalg.svd(cross)
-    sign = np.sign(np.linalg.det(u @ vt)) or 1.0
-    rotation = u @ np.diag([1.0, sign]) @ vt
-    return rotation, mean_t - rotation @ mean_s
 
 
 @dataclass(frozen=True)
@@ -691,20 +738,40 @@ def step_times(result: RunResult, window: int = 250) -> tuple[FloatArray, FloatA
 
 
 def _saved_run(path: str | os.PathLike[str]) -> Any:
-    """The fields of a saved run that :func:`step_times` and :func:`plot` need, from its ``.npz``."""
+    """The fields of a saved run that :func:`step_times` and :func:`plot` need, from its ``.npz``.
+
+    Raises
+    ------
+    DataFormatError
+        Naming the file and the array, if it is not a run's output.
+    """
     from types import SimpleNamespace
 
-    with np.load(path, allow_pickle=False) as saved:
-        return SimpleNamespace(
-            filter_name=str(saved["filter"]),
-            time=saved["time"],
-            scan_time=saved["scan_time"],
-            scan_elapsed=saved["scan_elapsed"],
-            scan_landmarks=saved["scan_landmarks"],
-            scans=len(saved["scan_time"]),
-            rmse=float(saved["rmse"]) if "rmse" in saved.files else float("nan"),
-            total_seconds=float(saved["total_seconds"]),
-        )
+    file = Path(path)
+    if not file.is_file():
+        raise not_found("saved run", f"{file} does not exist", "Give the .npz of an earlier run of this command")
+    saved = load_npz(
+        file, ("filter", "time", "scan_time", "scan_elapsed", "scan_landmarks", "total_seconds"), ("rmse",)
+    )
+    for name in ("time", "scan_time", "scan_elapsed"):
+        check_vector(file, name, saved[name], "float")
+    check_vector(file, "scan_landmarks", saved["scan_landmarks"], "int", len(saved["scan_time"]))
+    check_vector(file, "scan_elapsed", saved["scan_elapsed"], "float", len(saved["scan_time"]))
+    if len(saved["time"]) == 0:
+        raise DataFormatError(f"{file}: array 'time' is empty")
+    for name in ("filter", "total_seconds", "rmse"):
+        if name in saved and saved[name].shape != ():
+            raise DataFormatError(f"{file}: array {name!r} has shape {saved[name].shape}, expected a scalar")
+    return SimpleNamespace(
+        filter_name=str(saved["filter"]),
+        time=saved["time"],
+        scan_time=saved["scan_time"],
+        scan_elapsed=saved["scan_elapsed"],
+        scan_landmarks=saved["scan_landmarks"],
+        scans=len(saved["scan_time"]),
+        rmse=float(saved["rmse"]) if "rmse" in saved else float("nan"),
+        total_seconds=float(saved["total_seconds"]),
+    )
 
 
 def plot(
@@ -712,11 +779,12 @@ def plot(
     data: VictoriaPark,
     path: str | os.PathLike[str],
     title: str | None = None,
-    compare: Sequence[str | os.PathLike[str]] = (),
+    compare: Sequence[Any] = (),
 ) -> None:
     """Save the aligned trajectory and map over the GPS, and the time per step, to ``path``.
 
-    ``compare``: paths of other runs' ``.npz`` whose time per step is drawn too.
+    ``compare``: other runs whose time per step is drawn too, as paths of
+    their ``.npz`` (or as read by the command line).
     """
     import matplotlib
 
@@ -750,8 +818,8 @@ def plot(
     )
     ax_time.plot(t, ms, "-o", ms=3, color="tab:blue", label=label)
     colours = iter(["tab:red", "tab:orange", "tab:purple", "tab:brown"])
-    for other_path in compare:
-        other = _saved_run(other_path)
+    for other_run in compare:
+        other = _saved_run(other_run) if isinstance(other_run, (str, os.PathLike)) else other_run
         t_other, ms_other, _ = step_times(other)
         ax_time.plot(t_other, ms_other, "-s", ms=3, color=next(colours, "k"),
                      label=f"{other.filter_name.upper()}: {other.total_seconds:.1f} s, {other.rmse:.2f} m")  # fmt: skip
@@ -803,19 +871,22 @@ def summary(result: RunResult) -> str:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """``python -m seif_gym.datasets.victoria_park --data DIR --filter seif --out OUT.npz [--steps N]``."""
+    """``python -m seif_gym.datasets.victoria_park [--data DIR] --filter seif --out OUT.npz [--steps N]``.
+
+    Returns the exit status: 0, or 2 for bad arguments and for data not found
+    or malformed (one line on stderr naming the file).
+    """
     import argparse
-    import sys
-    from pathlib import Path as _Path
 
     from seif_gym.slam import FILTERS
 
+    prog = "python -m seif_gym.datasets.victoria_park"
     parser = argparse.ArgumentParser(
-        prog="python -m seif_gym.datasets.victoria_park",
+        prog=prog,
         description="Run a SLAM filter with unknown correspondences over the Victoria Park dataset.",
     )
-    parser.add_argument("--data", required=True,
-                        help="directory of victoria_park.npz (e.g. ../shared/data/victoria_park)")  # fmt: skip
+    parser.add_argument("--data", default=None,
+                        help=f"{FILE_NAME}, or its folder (default: ${DATA_ENV}/{FOLDER}/{FILE_NAME})")  # fmt: skip
     parser.add_argument("--filter", default="seif", choices=sorted(FILTERS), help="filter (default seif)")
     parser.add_argument("--out", required=True, help="output .npz (trajectory time/pose, map landmarks)")
     parser.add_argument("--steps", type=int, default=None, help="only the first N odometry steps (default: all)")
@@ -838,25 +909,27 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if args.steps is not None and args.steps < 1:
         parser.error("--steps must be positive")
-    try:
-        data = load(args.data)
-    except (FileNotFoundError, ValueError) as error:
-        print(f"error: {error}", file=sys.stderr)
-        return 2
+    return run_cli(prog, lambda: _command(args))
+
+
+def _command(args: Any) -> int:
+    """The command line's work, after its arguments are parsed."""
+    data = load(args.data)
+    compare = [_saved_run(path) for path in args.compare]  # read before the run: a bad file fails at once
     config = RunConfig(max_active=args.max_active, revisable=args.revisable, likelihood=args.likelihood)
     if args.signature:
         config = dataclasses.replace(config, **SIGNATURE_SETTINGS)
     result = run(data, args.filter, steps=args.steps, config=config, progress=not args.quiet,
                  blas_threads=args.blas_threads or None)  # fmt: skip
-    out = _Path(args.out)
-    if out.parent != _Path(""):
+    out = Path(args.out)
+    if out.parent != Path(""):
         out.parent.mkdir(parents=True, exist_ok=True)
     result.save(out)
     print(summary(result))
     print(f"wrote {out}")
     if not args.no_plot:
-        plot_path = _Path(args.plot) if args.plot else out.with_suffix(".png")
-        plot(result, data, plot_path, compare=args.compare)
+        plot_path = Path(args.plot) if args.plot else out.with_suffix(".png")
+        plot(result, data, plot_path, compare=compare)
         print(f"wrote {plot_path}")
     return 0
 

@@ -45,12 +45,12 @@ import math
 from pathlib import Path
 from typing import Any
 
-from seif_gym.datasets.mrclam_calibration import Calibration
+from seif_gym.datasets.mrclam.calibration import DATASET6, Calibration
 
 __all__ = ["MRCLAM_CALIBRATION", "MRCLAM_ORIGIN", "mrclam_kwargs"]
 
 #: The calibration of Dataset 6 the variant is built from.
-MRCLAM_CALIBRATION = Path(__file__).resolve().parents[1] / "datasets" / "mrclam6_calibration.json"
+MRCLAM_CALIBRATION = DATASET6
 #: Margin between the walls and the outermost robot position or landmark, m.
 WALL_MARGIN = 0.25
 

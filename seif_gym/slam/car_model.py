@@ -14,7 +14,7 @@ positive to the left). With ``t = tan(alpha)``::
 
 (``L`` wheelbase, ``H`` lateral offset of the encoder, ``a``, ``b`` position of
 the laser ahead of the rear axle and to the side of the centre line; the
-constants of the data README, ``shared/data/victoria_park/README.md``).
+constants of ``docs/data/victoria_park.md``).
 
 :class:`AckermannLaserModel` provides what every filter of
 :mod:`seif_gym.slam` takes from a motion model (the interface of

@@ -1,11 +1,10 @@
 """Tests of ``seif_gym.datasets.mrclam``: the MRCLAM text-format loader.
 
-The real-data tests read the shared copy of Dataset 6,
-``../shared/data/mrclam/MRCLAM_Dataset6`` beside the repository, and are
-skipped, saying so, only when it is absent; the figures they assert are those
-of the data README (``../shared/data/mrclam/README.md``). The synthetic tests
-write a tiny dataset in the same text format to ``tmp_path`` and always run.
-The data are never part of the repository.
+The full-data tests read Dataset 6 at ``$SEIF_GYM_DATA/mrclam/MRCLAM_Dataset6``
+and are skipped, saying so, when it is not there; the figures they assert are
+those measured on that copy (docs/data/mrclam.md). The synthetic tests write a
+tiny dataset in the same text format to ``tmp_path`` (valid and malformed) and
+always run. The data are never part of the repository.
 """
 
 from __future__ import annotations
@@ -15,18 +14,13 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from mrclam_fixtures import DATA_DIR, requires_data  # tests/datasets/ is on sys.path under pytest
 
-from seif_gym.datasets import mrclam
+from seif_gym.datasets import DATA_ENV, DataFormatError, DataNotFoundError, mrclam
 
-DATA_DIR = Path(__file__).resolve().parents[2] / "shared" / "data" / "mrclam" / "MRCLAM_Dataset6"
-requires_data = pytest.mark.skipif(
-    not DATA_DIR.is_dir(),
-    reason=f"MRCLAM Dataset 6 not found at {DATA_DIR} (expected ../shared/data/mrclam beside the repository)",
-)
-
-# From the data README's table "Figures measured on this copy":
+# Measured on Dataset 6 (docs/data/mrclam.md):
 # robot: (duration s, odometry rows, landmark measurements, robot sightings, unknown barcodes)
-README_FIGURES = {
+FIGURES = {
     1: (772, 61785, 1534, 407, 1),
     2: (900, 65005, 3239, 792, 0),
     3: (900, 61158, 4348, 1277, 2),
@@ -55,7 +49,7 @@ def _arrays(log: mrclam.MrclamLog):
 @requires_data
 def test_counts_match_readme(logs):
     assert sorted(logs) == [1, 2, 3, 4, 5]
-    for robot, (duration, n_odo, n_landmark, n_robot, n_unknown) in README_FIGURES.items():
+    for robot, (duration, n_odo, n_landmark, n_robot, n_unknown) in FIGURES.items():
         log = logs[robot]
         assert log.robot == robot
         assert len(log.odometry) == n_odo
@@ -98,13 +92,13 @@ def test_times_sorted_and_within_ground_truth(logs):
             assert np.all(np.diff(stream.time) >= 0)
         for stream in (log.measurements, log.robot_sightings):
             assert gt.time[0] <= stream.time[0] and stream.time[-1] <= gt.time[-1]
-        # Ground truth starts several seconds before the odometry (README).
+        # Ground truth starts several seconds before the odometry (docs/data/mrclam.md).
         assert 1.0 < log.odometry.time[0] - gt.time[0] < 60.0
-        if robot == 1:  # robot 1's ground truth ends at 772 s, its odometry runs on (README)
+        if robot == 1:  # robot 1's ground truth ends at 772 s, its odometry runs on (docs/data/mrclam.md)
             assert log.odometry.time[-1] > gt.time[-1] + 60.0
         else:
             assert log.odometry.time[-1] <= gt.time[-1]
-        # Rates: odometry median gap 10 ms; ground truth ~67 Hz (README).
+        # Rates: odometry median gap 10 ms; ground truth ~67 Hz (docs/data/mrclam.md).
         assert np.median(np.diff(log.odometry.time)) == pytest.approx(0.010, abs=0.002)
         assert 50.0 < 1.0 / np.median(np.diff(gt.time)) < 85.0
 
@@ -113,13 +107,13 @@ def test_times_sorted_and_within_ground_truth(logs):
 def test_units_plausible(logs):
     for log in logs.values():
         odo = log.odometry
-        # README: v <= 0.09 m/s, |omega| <= 0.57 rad/s.
+        # docs/data/mrclam.md: v <= 0.09 m/s, |omega| <= 0.57 rad/s.
         assert np.all((odo.v >= 0.0) & (odo.v <= 0.09))
         assert np.all(np.abs(odo.omega) <= 0.57 + 1e-9)
         for stream in (log.measurements, log.robot_sightings):
-            # README: ranges between ~0.9 m and ~8.6 m.
+            # docs/data/mrclam.md: ranges between ~0.9 m and ~8.6 m.
             assert np.all((stream.range > 0.8) & (stream.range < 10.0))
-            # The README gives no field of view: a forward-looking camera sees
+            # The docs give no field of view: a forward-looking camera sees
             # only ahead, |bearing| < pi/2 (0 straight ahead).
             assert np.all(np.abs(stream.bearing) < math.pi / 2)
         gt = log.ground_truth
@@ -145,7 +139,7 @@ def test_barcode_mapping(logs):
         assert all(b not in table for b in log.dropped_barcodes.tolist())
         times, start = log.measurements.frames()
         assert start[-1] == len(log.measurements) and len(start) == len(times) + 1
-        assert len(times) < len(log.measurements)  # several readings share a camera frame (README)
+        assert len(times) < len(log.measurements)  # several readings share a camera frame (docs/data/mrclam.md)
 
 
 @requires_data
@@ -268,3 +262,98 @@ def test_malformed_file(tiny):
     _write(tiny / "Robot2_Odometry.dat", "Time [s]    v", [(1.0, 0.05), (2.0, 0.05)])
     with pytest.raises(ValueError, match="Robot2_Odometry.dat"):
         mrclam.load(tiny, 2)
+
+
+# ---------------------------------------------------------------------------
+# Where the data are found
+# ---------------------------------------------------------------------------
+def test_data_come_from_the_argument_else_seif_gym_data(tiny, tmp_path, monkeypatch):
+    monkeypatch.delenv(DATA_ENV, raising=False)
+    with pytest.raises(DataNotFoundError, match=DATA_ENV) as error:
+        mrclam.load(robot=1)
+    message = str(error.value)
+    assert "--data" in message and "docs/data/mrclam.md" in message and "\n" not in message
+    # SEIF_GYM_DATA holds mrclam/MRCLAM_Dataset6
+    root = tmp_path / "data"
+    (root / "mrclam").mkdir(parents=True)
+    tiny.rename(root / "mrclam" / "MRCLAM_Dataset6")
+    monkeypatch.setenv(DATA_ENV, str(root))
+    assert mrclam.locate() == root / "mrclam" / "MRCLAM_Dataset6"
+    assert mrclam.load(robot=1).measurements.subject.tolist() == [6, 7, 7]
+    assert sorted(mrclam.load_all()) == [1, 2, 3, 4, 5]
+    # an explicit argument wins; it may name the dataset, or a folder holding it (or holding mrclam/ with it)
+    assert mrclam.locate(root / "mrclam") == root / "mrclam" / "MRCLAM_Dataset6"
+    assert mrclam.locate(root) == root / "mrclam" / "MRCLAM_Dataset6"
+    with pytest.raises(DataNotFoundError, match="elsewhere"):
+        mrclam.load(tmp_path / "elsewhere", 1)
+    monkeypatch.setenv(DATA_ENV, str(tmp_path / "empty"))
+    with pytest.raises(DataNotFoundError, match="has no mrclam/MRCLAM_Dataset6"):
+        mrclam.load(robot=1)
+
+
+# ---------------------------------------------------------------------------
+# Malformed files: a ValueError naming the file and the line
+# ---------------------------------------------------------------------------
+def _replace_line(path: Path, number: int, text: str) -> None:
+    lines = path.read_text().splitlines()
+    lines[number - 1] = text
+    path.write_text("\n".join(lines) + "\n")
+
+
+def _header_lines(path: Path) -> int:
+    return sum(1 for line in path.read_text().splitlines() if line.startswith("#"))
+
+
+@pytest.mark.parametrize(
+    ("file", "row", "text", "says"),
+    [
+        ("Robot1_Odometry.dat", 5, "101.04 0.05 abc", "'abc' is not a number"),
+        ("Robot1_Odometry.dat", 7, "101.06 0.05", "2 values, expected 3"),
+        ("Robot1_Odometry.dat", 9, "101.08 nan -0.1", "not finite"),
+        ("Robot1_Groundtruth.dat", 3, "101.03 0.02 0.0 inf", "not finite"),
+        ("Robot1_Measurement.dat", 2, "102.5 81.5 2.5 -0.2", "barcode is not an integer"),
+        ("Robot1_Measurement.dat", 4, "102.7 5 -1.0 0.0", "range is not positive"),
+        ("Barcodes.dat", 8, "8 63", "barcode appears twice"),
+        ("Barcodes.dat", 2, "2 14.5", "subject or barcode is not an integer"),
+        ("Landmark_Groundtruth.dat", 2, "7 1.0 0.5 0.0003 0.0004", "subject appears twice"),
+        ("Landmark_Groundtruth.dat", 1, "7.5 2.0 -1.0 0.0001 0.0002", "subject is not an integer"),
+    ],
+)
+def test_a_malformed_line_is_named(tiny, file, row, text, says):
+    path = tiny / file
+    line = _header_lines(path) + row
+    _replace_line(path, line, text)
+    with pytest.raises(DataFormatError, match=f"{file}, line {line}: .*{says}") as error:
+        mrclam.load(tiny, 1)
+    assert isinstance(error.value, ValueError) and str(path) in str(error.value)
+
+
+def test_a_truncated_or_empty_file_is_named(tiny):
+    odometry = tiny / "Robot2_Odometry.dat"
+    text = odometry.read_text()
+    odometry.write_text(text[: len(text) // 2 - 3])  # cut inside a line
+    last = len(odometry.read_text().splitlines())
+    with pytest.raises(DataFormatError, match=f"Robot2_Odometry.dat, line {last}: "):
+        mrclam.load(tiny, 2)
+    odometry.write_text("# Time [s]    v    omega\n")
+    with pytest.raises(DataFormatError, match="Robot2_Odometry.dat: no data rows"):
+        mrclam.load(tiny, 2)
+    (tiny / "Robot3_Measurement.dat").write_text("# no readings\n")  # a robot that saw nothing is fine
+    assert len(mrclam.load(tiny, 3).measurements) == 0
+    (tiny / "Robot4_Groundtruth.dat").write_bytes(b"\x00\x01\xff" * 50)
+    with pytest.raises(DataFormatError, match="Robot4_Groundtruth.dat, line 1: "):
+        mrclam.load(tiny, 4)
+
+
+def test_the_old_module_names_warn_and_work():
+    import importlib
+    import sys
+
+    from seif_gym.datasets.mrclam import calibration, episodes, runner
+
+    for name, new in (("calibration", calibration), ("episodes", episodes), ("runner", runner)):
+        sys.modules.pop(f"seif_gym.datasets.mrclam_{name}", None)
+        with pytest.warns(DeprecationWarning, match=f"seif_gym.datasets.mrclam.{name}"):
+            old = importlib.import_module(f"seif_gym.datasets.mrclam_{name}")
+        assert all(getattr(old, attribute) is getattr(new, attribute) for attribute in new.__all__)
+        assert old.main is new.main

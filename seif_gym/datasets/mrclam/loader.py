@@ -9,8 +9,9 @@ system gives ground-truth robot poses (~67 Hz) and a survey gives the landmark
 positions. It matches :mod:`seif_gym.slam`'s models (velocity controls,
 range-bearing landmarks, known correspondences) and has real ground truth for
 both trajectory and map. The data are *not* in the package: :func:`load` takes
-the folder of one dataset (``shared/data/mrclam/MRCLAM_Dataset6`` in this
-project, whose README documents the figures). Cite K. Y. K. Leung, Y. Halpern,
+the folder of one dataset from ``data=`` (``--data``), else
+``$SEIF_GYM_DATA/mrclam/MRCLAM_Dataset6`` (:func:`locate`;
+``docs/data/mrclam.md`` says where to obtain them). Cite K. Y. K. Leung, Y. Halpern,
 T. D. Barfoot, H. H. T. Liu, "The UTIAS Multi-Robot Cooperative Localization
 and Mapping Dataset", IJRR 30(8), 2011, when you use them.
 
@@ -27,7 +28,11 @@ Units: times are UNIX seconds on one clock shared by all files of a dataset
 ranges in metres; angles in radians, bearings in the robot frame (0 straight
 ahead, counter-clockwise positive).
 
-Pitfalls (from the data README) and what the loader does about each:
+Every file is checked as it is read: a malformed one raises
+:class:`~seif_gym.datasets.DataFormatError` (a ``ValueError``) naming the
+file and the line.
+
+Pitfalls of the data and what the loader does about each:
 
 * Measurements name **barcodes**, not subjects (the header says "Subject #"):
   they are mapped to subjects with ``Barcodes.dat``. Sightings of the other
@@ -55,37 +60,25 @@ Pitfalls (from the data README) and what the loader does about each:
 Every stream is sorted by time (a stable sort; the files of Dataset 6 are
 already sorted). All arrays are read-only.
 
-Command line::
-
-    python -m seif_gym.datasets.mrclam calibrate --data DIR [--robots 1 2 ...] [--out FILE]
-    python -m seif_gym.datasets.mrclam episodes --data DIR --calibration FILE --out DIR [--robots ...] [--dt S]
-    python -m seif_gym.datasets.mrclam --data DIR --robot N|all --filter ekf|eif|seif|eseif --out OUT.npz \
-        [--association known|ml] [--calibration FILE]
-
-The first estimates the command correction, the per-second motion noise and
-the sensor noise from the ground truth (:mod:`seif_gym.datasets.mrclam_calibration`)
-and writes them to a JSON file (:class:`~seif_gym.datasets.mrclam_calibration.Calibration`);
-the second runs a filter over the logs and scores it against Vicon and the
-survey (:mod:`seif_gym.datasets.mrclam_runner`).
+The command line, ``python -m seif_gym.datasets.mrclam`` (``calibrate``,
+``episodes``, or the runner), is :mod:`seif_gym.datasets.mrclam.__main__`.
 
 Example::
 
     from seif_gym.datasets import mrclam
 
-    log = mrclam.load("../shared/data/mrclam/MRCLAM_Dataset6", robot=1)
+    log = mrclam.load("MRCLAM_Dataset6", robot=1)  # or mrclam.load(robot=1) with SEIF_GYM_DATA set
     log.odometry.controls          # (n, 2): v [m/s], omega [rad/s]
     log.measurements.subject       # landmark subjects 6..20
     log.ground_truth.interpolate(log.odometry.time[0])  # initial pose (x, y, theta)
     log.landmarks.positions        # (15, 2) surveyed map
-    logs = mrclam.load_all("../shared/data/mrclam/MRCLAM_Dataset6")  # {1: ..., 5: ...}
+    logs = mrclam.load_all("MRCLAM_Dataset6")  # {1: ..., 5: ...}
 """
 
 from __future__ import annotations
 
 import os
-import sys
 import warnings
-from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -93,18 +86,29 @@ import numpy as np
 from numpy.typing import ArrayLike, DTypeLike, NDArray
 
 from seif_gym.datasets._arrays import frozen
+from seif_gym.datasets._files import DATA_ENV, DataFormatError, DataNotFoundError, data_lines, data_root, not_found
 from seif_gym.slam.models import wrap_angle
 from seif_gym.type_aliases import FloatArray, IntArray
 
 #: The robots' subject numbers (in every MRCLAM dataset).
 ROBOTS: tuple[int, ...] = (1, 2, 3, 4, 5)
+#: Folder of the MRCLAM datasets under ``$SEIF_GYM_DATA``, and the dataset read from there by default.
+FOLDER = "mrclam"
+DEFAULT_DATASET = "MRCLAM_Dataset6"
+#: How to obtain the data, for the error of data not found.
+HOW_TO_OBTAIN = (
+    f"The data are not part of seif_gym: download an MRCLAM dataset (UTIAS, Leung et al., IJRR 2011; "
+    f"docs/data/mrclam.md) and pass its folder as data= (--data DIR) or put it at "
+    f"${DATA_ENV}/{FOLDER}/{DEFAULT_DATASET}"
+)
 BARCODES_FILE = "Barcodes.dat"
 LANDMARKS_FILE = "Landmark_Groundtruth.dat"
 _ROBOT_FILES = {"odometry": "Robot{}_Odometry.dat", "measurement": "Robot{}_Measurement.dat",
                 "groundtruth": "Robot{}_Groundtruth.dat"}  # fmt: skip
 
 __all__ = [
-    "ROBOTS", "GroundTruth", "Landmarks", "Measurements", "MrclamLog", "Odometry", "load", "load_all",
+    "BARCODES_FILE", "DEFAULT_DATASET", "LANDMARKS_FILE", "ROBOTS", "GroundTruth", "Landmarks", "Measurements",
+    "MrclamLog", "Odometry", "load", "load_all", "locate",
 ]  # fmt: skip
 
 
@@ -300,31 +304,118 @@ class MrclamLog:
 # ---------------------------------------------------------------------------
 # Parsing
 # ---------------------------------------------------------------------------
-def _resolve_folder(path: str | os.PathLike[str]) -> Path:
-    folder = Path(path)
+def locate(data: str | os.PathLike[str] | None = None) -> Path:
+    """The MRCLAM dataset folder that ``data`` names, else ``$SEIF_GYM_DATA/mrclam/MRCLAM_Dataset6``.
+
+    Parameters
+    ----------
+    data : str or Path, optional
+        A dataset folder (holding ``Barcodes.dat``, e.g. ``MRCLAM_Dataset6``),
+        or a folder holding ``MRCLAM_Dataset6/`` or ``mrclam/MRCLAM_Dataset6/``.
+
+    Raises
+    ------
+    DataNotFoundError
+        No such folder, or neither ``data`` nor ``SEIF_GYM_DATA`` given; the
+        message says how to obtain the data and where to put them. (A folder
+        that lacks one of the files fails when that file is read.)
+    """
+    if data is None:
+        root = data_root()
+        if root is None:
+            raise not_found("MRCLAM data", f"no data= (--data) given and {DATA_ENV} is not set", HOW_TO_OBTAIN)
+        folder = root / FOLDER / DEFAULT_DATASET
+        if not folder.is_dir():
+            raise not_found("MRCLAM data", f"{DATA_ENV}={root} has no {FOLDER}/{DEFAULT_DATASET}", HOW_TO_OBTAIN)
+        return folder
+    folder = Path(data)
     if not folder.is_dir():
-        raise FileNotFoundError(f"MRCLAM dataset folder not found: {folder} (give a folder like MRCLAM_Dataset6)")
+        raise not_found("MRCLAM dataset folder", f"{folder} is not a folder", HOW_TO_OBTAIN)
+    if not (folder / BARCODES_FILE).is_file():
+        for candidate in (folder / DEFAULT_DATASET, folder / FOLDER / DEFAULT_DATASET):
+            if (candidate / BARCODES_FILE).is_file():
+                return candidate
     return folder
 
 
-def _read_table(file: Path, columns: tuple[int, ...], dtype: DTypeLike = np.float64) -> NDArray:
-    """Whitespace-separated numbers of ``file``, ``#`` comments skipped; shape (rows, ncols).
+def _line(file: Path, row: int) -> int:
+    """The line number of data row ``row`` (0-based, comments and blank lines skipped) of ``file``."""
+    return data_lines(file)[row][0]
 
-    ``columns`` lists the accepted column counts (e.g. ``(3, 5)``).
+
+def _first_bad_line(file: Path, columns: tuple[int, ...], integers: bool) -> DataFormatError:
+    """The error of the first line of ``file`` that is not a row of ``columns`` numbers (integers)."""
+    expected = " or ".join(map(str, columns))
+    width = None
+    for number, text in data_lines(file):
+        fields = text.split()
+        if len(fields) not in columns:
+            return DataFormatError(f"{file}, line {number}: {len(fields)} values, expected {expected}")
+        if width is not None and len(fields) != width:
+            return DataFormatError(f"{file}, line {number}: {len(fields)} values, the lines above have {width}")
+        width = len(fields)
+        for field in fields:
+            try:
+                value = float(field)
+            except ValueError:
+                return DataFormatError(f"{file}, line {number}: {field[:40]!r} is not a number")
+            if integers and not value.is_integer():
+                return DataFormatError(f"{file}, line {number}: {field[:40]!r} is not an integer")
+    return DataFormatError(f"{file}: not a table of numbers")
+
+
+def _read_table(file: Path, columns: tuple[int, ...], dtype: DTypeLike = np.float64, required: bool = True) -> NDArray:
+    """Whitespace-separated numbers of ``file``, ``#`` comments skipped; shape (rows, ncols), in file order.
+
+    ``columns`` lists the accepted column counts (e.g. ``(3, 5)``); every
+    value must be finite. ``required``: the file must have a data row.
+
+    Raises
+    ------
+    DataNotFoundError
+        ``file`` does not exist.
+    DataFormatError
+        Naming ``file`` and the line: a value that is not a number (an
+        integer, for an integer ``dtype``), a wrong number of columns, a
+        non-finite value, or no data row when ``required``.
     """
     if not file.is_file():
-        raise FileNotFoundError(f"MRCLAM file not found: {file}")
+        raise DataNotFoundError(f"MRCLAM file not found: {file} (an MRCLAM dataset folder holds {BARCODES_FILE}, "
+                                f"{LANDMARKS_FILE} and RobotN_{{Odometry,Measurement,Groundtruth}}.dat)")  # fmt: skip
+    integers = np.dtype(dtype).kind in "iu"
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", UserWarning)  # "input contained no data" for an empty table
         try:
             table = np.loadtxt(file, comments="#", dtype=dtype, ndmin=2)
-        except ValueError as error:
-            raise ValueError(f"{file}: not a table of numbers ({error})") from error
+        except ValueError:
+            raise _first_bad_line(file, columns, integers) from None
     if table.size == 0:
+        if required:
+            raise DataFormatError(f"{file}: no data rows")
         return np.empty((0, columns[0]), dtype=dtype)
     if table.shape[1] not in columns:
-        raise ValueError(f"{file}: {table.shape[1]} columns, expected {' or '.join(map(str, columns))}")
+        expected = " or ".join(map(str, columns))
+        raise DataFormatError(f"{file}, line {_line(file, 0)}: {table.shape[1]} values, expected {expected}")
+    if not integers:
+        bad = np.flatnonzero(~np.all(np.isfinite(table), axis=1))
+        if len(bad):
+            raise DataFormatError(f"{file}, line {_line(file, int(bad[0]))}: a value is not finite")
     return table
+
+
+def _check_rows(file: Path, bad: NDArray[np.bool_], what: str) -> None:
+    """DataFormatError naming the line of the first row of ``file`` where ``bad`` holds."""
+    rows = np.flatnonzero(bad)
+    if len(rows):
+        raise DataFormatError(f"{file}, line {_line(file, int(rows[0]))}: {what}")
+
+
+def _repeated(values: NDArray) -> NDArray[np.bool_]:
+    """Mask of the entries of ``values`` equal to an earlier one."""
+    _, first = np.unique(values, return_index=True)
+    mask = np.ones(len(values), dtype=bool)
+    mask[first] = False
+    return mask
 
 
 def _sorted_rows(table: NDArray) -> NDArray:
@@ -345,13 +436,16 @@ def _measurements(table: NDArray, subject: IntArray, rows: NDArray[np.bool_]) ->
 
 
 def _read_shared(folder: Path) -> tuple[IntArray, Landmarks]:
-    barcodes = _read_table(folder / BARCODES_FILE, (2,), np.int64)
-    if len(np.unique(barcodes[:, 1])) != len(barcodes):
-        raise ValueError(f"{folder / BARCODES_FILE}: a barcode appears twice")
-    lm = _read_table(folder / LANDMARKS_FILE, (3, 5))
+    barcodes_file = folder / BARCODES_FILE
+    table = _read_table(barcodes_file, (2,))
+    _check_rows(barcodes_file, np.any(table != np.round(table), axis=1), "a subject or barcode is not an integer")
+    barcodes = table.astype(np.int64)
+    _check_rows(barcodes_file, _repeated(barcodes[:, 1]), "the barcode appears twice")
+    landmarks_file = folder / LANDMARKS_FILE
+    lm = _read_table(landmarks_file, (3, 5))
+    _check_rows(landmarks_file, lm[:, 0] != np.round(lm[:, 0]), "the subject is not an integer")
+    _check_rows(landmarks_file, _repeated(lm[:, 0]), "the subject appears twice")
     lm = lm[np.argsort(lm[:, 0], kind="stable")]
-    if np.any(lm[:, 0] != np.round(lm[:, 0])) or len(np.unique(lm[:, 0])) != len(lm):
-        raise ValueError(f"{folder / LANDMARKS_FILE}: subjects must be distinct integers")
     has_std = lm.shape[1] == 5
     landmarks = Landmarks(
         subject=frozen(lm[:, 0], np.int64),
@@ -363,7 +457,7 @@ def _read_shared(folder: Path) -> tuple[IntArray, Landmarks]:
     return frozen(barcodes, np.int64), landmarks
 
 
-def _check_robot(robot: int) -> int:
+def _check_robot(robot: int | None) -> int:
     if isinstance(robot, bool) or not isinstance(robot, (int, np.integer)) or int(robot) not in ROBOTS:
         raise ValueError(f"robot must be an integer in 1..5, got {robot!r}")
     return int(robot)
@@ -372,17 +466,18 @@ def _check_robot(robot: int) -> int:
 def _load_robot(folder: Path, robot: int, barcodes: IntArray, landmarks: Landmarks) -> MrclamLog:
     odo = _sorted_rows(_read_table(folder / _ROBOT_FILES["odometry"].format(robot), (3,)))
     gt = _sorted_rows(_read_table(folder / _ROBOT_FILES["groundtruth"].format(robot), (4,)))
-    meas = _sorted_rows(_read_table(folder / _ROBOT_FILES["measurement"].format(robot), (4,)))
+    meas_file = folder / _ROBOT_FILES["measurement"].format(robot)
+    meas = _read_table(meas_file, (4,), required=False)
+    _check_rows(meas_file, meas[:, 1] != np.round(meas[:, 1]), "the barcode is not an integer")
+    _check_rows(meas_file, meas[:, 2] <= 0, "the range is not positive")
+    meas = _sorted_rows(meas)
 
-    # Barcode -> subject (0 = no subject) through a lookup table: vectorised.
-    read = meas[:, 1]
-    if np.any(read != np.round(read)):
-        raise ValueError(f"{folder / _ROBOT_FILES['measurement'].format(robot)}: non-integer barcodes")
-    read = read.astype(np.int64)
-    size = int(max(barcodes[:, 1].max(initial=0), read.max(initial=0), 0)) + 1
-    lookup = np.zeros(size, dtype=np.int64)
-    lookup[barcodes[:, 1][barcodes[:, 1] >= 0]] = barcodes[:, 0][barcodes[:, 1] >= 0]
-    subject = np.where(read >= 0, lookup[np.maximum(read, 0)], 0)
+    # Barcode -> subject (0 = no subject), vectorised over the barcodes sorted.
+    read = meas[:, 1].astype(np.int64)
+    order = np.argsort(barcodes[:, 1], kind="stable")
+    known, subjects = barcodes[order, 1], barcodes[order, 0]
+    at = np.minimum(np.searchsorted(known, read), len(known) - 1)  # Barcodes.dat has rows (_read_table)
+    subject = np.where(known[at] == read, subjects[at], 0)
     is_landmark = np.isin(subject, landmarks.subject) & ~np.isin(subject, ROBOTS)
     is_robot = np.isin(subject, ROBOTS) & (subject != robot)
     dropped = ~(is_landmark | is_robot)
@@ -405,17 +500,17 @@ def _load_robot(folder: Path, robot: int, barcodes: IntArray, landmarks: Landmar
 # ---------------------------------------------------------------------------
 # Public API
 # ---------------------------------------------------------------------------
-def load(path: str | os.PathLike[str], robot: int) -> MrclamLog:
+def load(data: str | os.PathLike[str] | None = None, robot: int | None = None) -> MrclamLog:
     """Load one robot's log from an MRCLAM dataset folder (original text format).
 
     Parameters
     ----------
-    path : str or Path
-        The dataset folder (e.g. ``shared/data/mrclam/MRCLAM_Dataset6``),
-        holding ``Barcodes.dat``, ``Landmark_Groundtruth.dat`` and
-        ``RobotN_{Odometry,Measurement,Groundtruth}.dat``.
+    data : str or Path, optional
+        The dataset folder (:func:`locate`), holding ``Barcodes.dat``,
+        ``Landmark_Groundtruth.dat`` and ``RobotN_{Odometry,Measurement,Groundtruth}.dat``;
+        without it, ``$SEIF_GYM_DATA/mrclam/MRCLAM_Dataset6``.
     robot : int
-        The robot, 1..5.
+        The robot, 1..5 (required).
 
     Returns
     -------
@@ -427,49 +522,26 @@ def load(path: str | os.PathLike[str], robot: int) -> MrclamLog:
     Raises
     ------
     ValueError
-        ``robot`` is not 1..5, or a file is malformed.
-    FileNotFoundError
-        The folder or one of its files is missing (the message names it).
+        ``robot`` is not 1..5.
+    DataFormatError
+        A ``ValueError`` naming the file and the line: a value that is not a
+        number, a wrong number of columns, a non-finite value, a non-integer
+        or repeated barcode or subject, a range that is not positive, no rows
+        of odometry or ground truth.
+    DataNotFoundError
+        A ``FileNotFoundError``: the folder or one of its files is missing (the message names it).
     """
     robot = _check_robot(robot)
-    folder = _resolve_folder(path)
+    folder = locate(data)
     barcodes, landmarks = _read_shared(folder)
     return _load_robot(folder, robot, barcodes, landmarks)
 
 
-def load_all(path: str | os.PathLike[str]) -> dict[int, MrclamLog]:
+def load_all(data: str | os.PathLike[str] | None = None) -> dict[int, MrclamLog]:
     """Load the logs of the five robots of an MRCLAM dataset folder: ``{1: log1, ..., 5: log5}``.
 
-    The shared files are read once; see :func:`load` for parameters and errors.
+    The shared files are read once; see :func:`load` for ``data`` and the errors.
     """
-    folder = _resolve_folder(path)
+    folder = locate(data)
     barcodes, landmarks = _read_shared(folder)
     return {robot: _load_robot(folder, robot, barcodes, landmarks) for robot in ROBOTS}
-
-
-# ---------------------------------------------------------------------------
-# Command line
-# ---------------------------------------------------------------------------
-def main(argv: Sequence[str] | None = None) -> int:
-    """``python -m seif_gym.datasets.mrclam [calibrate | episodes] ...``; returns the exit status.
-
-    ``calibrate ...`` runs :func:`seif_gym.datasets.mrclam_calibration.main`,
-    ``episodes ...`` :func:`seif_gym.datasets.mrclam_episodes.main`;
-    anything else the runner, :func:`seif_gym.datasets.mrclam_runner.main`.
-    """
-    args = list(sys.argv[1:] if argv is None else argv)
-    if args and args[0] == "calibrate":
-        from seif_gym.datasets.mrclam_calibration import main as calibrate_main
-
-        return calibrate_main(args[1:])
-    if args and args[0] == "episodes":
-        from seif_gym.datasets.mrclam_episodes import main as episodes_main
-
-        return episodes_main(args[1:])
-    from seif_gym.datasets.mrclam_runner import main as run_main
-
-    return run_main(args)
-
-
-if __name__ == "__main__":
-    sys.exit(main())

@@ -1,4 +1,4 @@
-"""Tests of the MRCLAM calibration (``seif_gym.datasets.mrclam_calibration``) and its robust estimators.
+"""Tests of the MRCLAM calibration (``seif_gym.datasets.mrclam.calibration``) and its robust estimators.
 
 * The robust estimators (``seif_gym.datasets.robust``) against their
   definitions and on contaminated samples with known parameters.
@@ -7,26 +7,28 @@
   which are about three standard errors of each estimate at this amount of data
   (two robots, 500 s each), measured over seeds.
 * The command line writes a file that :meth:`Calibration.load` reads back.
-* On the shared copy of Dataset 6 (skipped, saying so, when absent): the
-  figures of the data README.
+* On Dataset 6 under ``SEIF_GYM_DATA`` (skipped, saying so, when absent):
+  the figures of docs/data/mrclam.md.
 """
 
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
 
 import numpy as np
 import pytest
-from mrclam_fixtures import (  # tests/ is on sys.path under pytest
+from mrclam_fixtures import (  # tests/datasets/ is on sys.path under pytest
     DATA_DIR,
     TRUTH,
     requires_data,
 )
 
-from seif_gym.datasets import mrclam, robust
-from seif_gym.datasets import mrclam_calibration as mc
+from seif_gym.datasets import DATA_ENV, DataFormatError, mrclam, robust
+from seif_gym.datasets.mrclam import calibration as mc
+from seif_gym.datasets.mrclam.__main__ import main as mrclam_main
 
 
 @pytest.fixture(scope="module")
@@ -181,22 +183,12 @@ class TestFiles:
         sensor = calibrated.sensor(max_range=8.0, fov=1.2)
         assert sensor.range_bounds == calibrated.range_bounds and sensor.sigma_bearing == calibrated.sigma_bearing
 
-    def test_bad_files(self, calibrated, tmp_path):
-        data = calibrated.to_dict()
-        with pytest.raises(ValueError, match="format"):
-            mc.Calibration.from_dict({**data, "format": "other"})
-        del data["sensor_noise"]
-        with pytest.raises(ValueError, match="sensor_noise"):
-            mc.Calibration.from_dict(data)
-        with pytest.raises(FileNotFoundError, match="calibration file"):
-            mc.Calibration.load(tmp_path / "missing.json")
-
     def test_command_line_writes_what_calibrate_finds(self, simulated, calibrated, tmp_path):
         folder = mc.write_dataset(tmp_path / "MRCLAM_Sim", simulated)
         assert mrclam.load(folder, 1).odometry.time.shape == simulated[1].odometry.time.shape
         out = tmp_path / "cal.json"
         assert (
-            mrclam.main(
+            mrclam_main(
                 [
                     "calibrate",
                     "--data",
@@ -220,12 +212,45 @@ class TestFiles:
         assert found.source["robots"] == [1, 2]
 
     def test_module_entry_point(self, tmp_path):
-        result = subprocess.run([sys.executable, "-m", "seif_gym.datasets.mrclam", "calibrate", "--help"],
-                                capture_output=True, text=True, timeout=120, check=False)  # fmt: skip
+        env = {key: value for key, value in os.environ.items() if key != DATA_ENV}
+        result = subprocess.run([sys.executable, "-W", "error::RuntimeWarning", "-m", "seif_gym.datasets.mrclam",
+                                 "calibrate", "--help"], capture_output=True, text=True, timeout=120, check=False,
+                                env=env)  # fmt: skip
         assert result.returncode == 0 and "--horizon" in result.stdout
+        assert "RuntimeWarning" not in result.stderr  # runpy's "found in sys.modules" warning: not raised
         result = subprocess.run([sys.executable, "-m", "seif_gym.datasets.mrclam"], capture_output=True, text=True,
-                                timeout=120, check=False)  # fmt: skip
-        assert result.returncode == 2 and "--data" in result.stderr  # the runner's usage
+                                timeout=120, check=False, cwd=tmp_path, env=env)  # fmt: skip
+        # no data anywhere: one line saying where to put them, exit status 2, no traceback
+        assert result.returncode == 2 and "Traceback" not in result.stderr
+        assert len(result.stderr.strip().splitlines()) == 1
+        assert "--data" in result.stderr and DATA_ENV in result.stderr and "docs/data/mrclam.md" in result.stderr
+
+    def test_bad_files(self, calibrated, tmp_path, capsys):
+        data = calibrated.to_dict()
+        with pytest.raises(ValueError, match="format"):
+            mc.Calibration.from_dict({**data, "format": "other"})
+        with pytest.raises(ValueError, match="malformed field"):
+            mc.Calibration.from_dict({**data, "sensor_latency": "soon"})
+        del data["sensor_noise"]
+        with pytest.raises(ValueError, match="sensor_noise"):
+            mc.Calibration.from_dict(data)
+        with pytest.raises(FileNotFoundError, match="calibration file"):
+            mc.Calibration.load(tmp_path / "missing.json")
+        broken = tmp_path / "broken.json"
+        broken.write_text('{\n  "format": "seif_gym.mrclam.calibration/1",\n  "command_latency": ,\n}\n')
+        with pytest.raises(DataFormatError, match=r"broken.json, line 3: not valid JSON"):
+            mc.Calibration.load(broken)
+        broken.write_text("[1, 2]")
+        with pytest.raises(DataFormatError, match="broken.json: a calibration file holds a JSON object"):
+            mc.Calibration.load(broken)
+        broken.write_text(json.dumps(data))
+        with pytest.raises(DataFormatError, match="broken.json: calibration data lacks the field 'sensor_noise'"):
+            mc.Calibration.load(broken)
+        # the command lines report it in one line, exit status 2
+        capsys.readouterr()
+        assert mrclam_main(["--calibration", str(broken), "--data", str(tmp_path), "--robot", "1", "--quiet"]) == 2
+        assert capsys.readouterr().err.strip().endswith("broken.json: calibration data lacks the field 'sensor_noise'")
+        assert mc.DATASET6.is_file() and mc.Calibration.load(mc.DATASET6).source["dataset"] == "MRCLAM_Dataset6"
 
 
 # ---------------------------------------------------------------------------
@@ -233,7 +258,7 @@ class TestFiles:
 # ---------------------------------------------------------------------------
 @requires_data
 def test_dataset6_matches_the_readme():
-    """The data README's "What a careful calibration on Dataset 6 finds", from the ground truth."""
+    """What a careful calibration on Dataset 6 finds (docs/data/mrclam.md), from the ground truth."""
     cal = mc.calibrate(mrclam.load_all(DATA_DIR))
     c = cal.correction
     assert 0.90 <= c.turn_scale <= 0.96  # "the commanded turn rate is ~7 % high"

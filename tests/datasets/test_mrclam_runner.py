@@ -1,14 +1,14 @@
-"""Tests of the MRCLAM runner (``seif_gym.datasets.mrclam_runner``, ``python -m seif_gym.datasets.mrclam``).
+"""Tests of the MRCLAM runner (``seif_gym.datasets.mrclam.runner``, ``python -m seif_gym.datasets.mrclam``).
 
-* On a simulated log with known parameters (``mrclam_calibration.simulate_logs``)
+* On a simulated log with known parameters (``mrclam.calibration.simulate_logs``)
   and the true models, the EKF is accurate and consistent (ANEES near 3) and
   the SEIF close to it: the runner's handling of latencies, offsets, biases and
   the prediction schedule matches the simulator's.
 * The command line writes the documented outputs (``time``, ``pose`` N x 3,
   ``pose_covariance``, ``landmarks`` M x 2, ``landmark_ids`` survey subjects)
   and a plot, for one robot and for all, with known and ML association.
-* On the shared copy of Dataset 6 (skipped, saying so, when absent): the
-  EKF's figures of ``docs/mrclam.md``.
+* On Dataset 6 under ``SEIF_GYM_DATA`` (skipped, saying so, when absent): the
+  EKF's figures of ``docs/data/mrclam.md``.
 """
 
 from __future__ import annotations
@@ -17,15 +17,16 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
-from mrclam_fixtures import (  # tests/ is on sys.path under pytest
+from mrclam_fixtures import (  # tests/datasets/ is on sys.path under pytest
     DATA_DIR,
     TRUTH,
     requires_data,
 )
 
 from seif_gym.datasets import mrclam
-from seif_gym.datasets import mrclam_calibration as mc
-from seif_gym.datasets import mrclam_runner as mr
+from seif_gym.datasets.mrclam import calibration as mc
+from seif_gym.datasets.mrclam import runner as mr
+from seif_gym.datasets.mrclam.__main__ import main as mrclam_main
 
 #: The true models, every reading used once (the simulator's errors are white).
 PLAIN = replace(mr.RunnerConfig(), noise_inflation=1.0, min_interval=0.0)
@@ -70,7 +71,7 @@ def test_command_line_writes_the_documented_outputs(simulated, tmp_path):
     folder = mc.write_dataset(tmp_path / "MRCLAM_Sim", simulated)
     calibration = TRUTH.save(tmp_path / "truth.json")
     out = tmp_path / "run.npz"
-    assert mrclam.main(["--data", str(folder), "--robot", "1", "--filter", "ekf", "--out", str(out),
+    assert mrclam_main(["--data", str(folder), "--robot", "1", "--filter", "ekf", "--out", str(out),
                         "--calibration", str(calibration), "--quiet"]) == 0  # fmt: skip
     with np.load(out) as data:
         n = len(data["time"])
@@ -81,7 +82,7 @@ def test_command_line_writes_the_documented_outputs(simulated, tmp_path):
     assert out.with_suffix(".png").is_file()
     out_all = tmp_path / "all.npz"
     assert (
-        mrclam.main(
+        mrclam_main(
             [
                 "--data",
                 str(folder),

@@ -2,18 +2,13 @@
 
 from __future__ import annotations
 
-from pathlib import Path
+from shared_data import full_data  # tests/datasets/ is on sys.path under pytest
 
-import pytest
-
-from seif_gym.datasets import mrclam_calibration as mc
+from seif_gym.datasets.mrclam import calibration as mc
 from seif_gym.slam.noise_models import CommandCorrection
 
-DATA_DIR = Path(__file__).resolve().parents[2] / "shared" / "data" / "mrclam" / "MRCLAM_Dataset6"
-requires_data = pytest.mark.skipif(
-    not DATA_DIR.is_dir(),
-    reason=f"MRCLAM Dataset 6 not found at {DATA_DIR} (expected ../shared/data/mrclam beside the repository)",
-)
+#: ``$SEIF_GYM_DATA/mrclam/MRCLAM_Dataset6``, and the mark of the tests that read it.
+DATA_DIR, requires_data = full_data("mrclam/MRCLAM_Dataset6", "MRCLAM Dataset 6")
 
 #: Parameters of simulated logs (``mc.simulate_logs``) that the calibration must recover.
 TRUTH = mc.Calibration(

@@ -31,6 +31,7 @@ from agents import (  # noqa: E402
     make_agent,
 )
 from agents.baselines import GEOMETRY_READS, INFO_GAIN_READS, Geometry, landmark_rows, read_belief_map  # noqa: E402
+from agents.parallel import Executor  # noqa: E402
 from seif_gym.observation import ObservationDecoder  # noqa: E402
 
 OBS_ONLY = tuple(name for name in BASELINES if name != "info_gain")
@@ -562,7 +563,7 @@ def test_a_stored_run_of_another_task_or_seeds_is_refused_before_any_episode(tmp
     def no_episode(*_: object, **__: object) -> None:
         raise Refused  # an episode would have run
 
-    executor = evaluate.Executor()
+    executor = Executor()
     executor.map = no_episode  # type: ignore[method-assign]
     with pytest.raises(ValueError, match=message):
         evaluate.evaluate_agents(arguments["specs"], arguments["episodes"], arguments["seed"], arguments["env_id"],

@@ -1,0 +1,87 @@
+"""The command line of an evaluation: ``python -m agents.evaluate``."""
+
+from __future__ import annotations
+
+import argparse
+import time
+from collections.abc import Sequence
+
+from agents.baselines import BASELINES
+from agents.cli import json_object
+from agents.evaluate.report import load_stored_run, markdown_table, paired_table, write_outputs
+from agents.evaluate.rollout import evaluate_agents
+from agents.loading import agent_labels, check_agent_spec
+from agents.parallel import add_arguments as add_executor_arguments
+from agents.parallel import from_arguments as executor_from_arguments
+from seif_gym import LATEST_ID
+
+__all__ = ["main"]
+
+
+def _parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="python -m agents.evaluate",
+        description="Run agents on the same seeds of a SeifExplore env and compare them.",
+    )
+    parser.add_argument(
+        "--agents",
+        required=True,
+        help=f"comma-separated baseline names ({', '.join(BASELINES)}) and/or paths of SB3 .zip models",
+    )
+    parser.add_argument("--episodes", type=int, default=10, help="episodes per agent (default 10)")
+    parser.add_argument("--seed", type=int, default=0, help="seed of the first episode (default 0)")
+    parser.add_argument("--env", default=LATEST_ID, help="registered env id (default %(default)s)")
+    parser.add_argument(
+        "--env-kwargs", type=json_object, default="{}", help="JSON object of gym.make keyword arguments"
+    )
+    parser.add_argument("--out", default="eval", help="output folder (default ./eval)")
+    parser.add_argument("--bootstrap", type=int, default=0, metavar="N",
+                        help="also a percentile bootstrap interval of the paired differences, N resamples (default 0: none)")  # fmt: skip
+    parser.add_argument(
+        "--stored-run",
+        default=None,
+        metavar="DIR",
+        help="an earlier --out folder of this command on the same env, env kwargs and seeds: its agents' episodes "
+        "join this run's without running again (e.g. the baselines' held-out episodes)",
+    )
+    parser.add_argument("--quiet", action="store_true", help="no progress on stderr")
+    add_executor_arguments(parser)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Command-line entry point; returns the exit status."""
+    parser = _parser()
+    args = parser.parse_args(argv)
+    specs = [spec.strip() for spec in args.agents.split(",") if spec.strip()]
+    if args.episodes < 1:
+        parser.error(f"--episodes must be positive, got {args.episodes}")
+    if args.bootstrap < 0:
+        parser.error(f"--bootstrap must be >= 0, got {args.bootstrap}")
+    try:
+        for _, target in agent_labels(specs):
+            check_agent_spec(target)
+    except (ValueError, FileNotFoundError) as error:
+        parser.error(str(error))
+    if args.stored_run is not None:  # its errors as the command's, before any episode runs
+        seeds = list(range(args.seed, args.seed + args.episodes))
+        try:
+            load_stored_run(
+                args.stored_run, args.env, args.env_kwargs, seeds, [label for label, _ in agent_labels(specs)]
+            )
+        except (ValueError, FileNotFoundError) as error:
+            parser.error(str(error).replace("stored_run:", "--stored-run:", 1))
+    executor = executor_from_arguments(args, parser)
+    started = time.perf_counter()
+    rows, summary = evaluate_agents(specs, args.episodes, args.seed, args.env, args.env_kwargs, verbose=not args.quiet,
+                                    bootstrap=args.bootstrap, executor=executor, stored_run=args.stored_run)  # fmt: skip
+    paths = write_outputs(rows, summary, args.out)
+    print(f"{args.env}, {args.episodes} episodes per agent, seeds {args.seed}..{args.seed + args.episodes - 1}; "
+          "mean ± 95% CI half-width\n")  # fmt: skip
+    print(markdown_table(summary))
+    paired = paired_table(summary)
+    if paired:
+        print(f"\n{paired}")
+    print(f"\nwrote {', '.join(str(path) for path in paths.values())} in {time.perf_counter() - started:.1f} s "
+          f"({executor.kind}: {len(executor.placements)} tasks on {len(set(executor.placements))} processes or nodes)")  # fmt: skip
+    return 0

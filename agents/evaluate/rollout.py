@@ -1,0 +1,257 @@
+"""Running an evaluation: every agent on the same seeds, one episode at a time, on any executor.
+
+:func:`evaluate_agents` is the entry point; :func:`run_episode` is the one episode loop that the
+evaluation, the validation callback and the robustness harness share.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import time
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+
+import seif_gym  # noqa: F401  (registers the environments)
+from agents.base import Agent
+from agents.baselines import BASELINES, baseline_class
+from agents.evaluate.report import load_stored_run
+from agents.evaluate.schema import SCHEMA_VERSION, SUMMARY_METRICS
+from agents.evaluate.statistics import mean_ci, mean_curve, paired_comparison
+from agents.loading import agent_labels, check_agent_spec, load_agent
+from agents.parallel import Executor, chunks
+from seif_gym import LATEST_ID
+from seif_gym.progress import Progress
+
+__all__ = ["build_agent", "evaluate_agents", "make_evaluation_env", "run_episode", "without_exact_nees"]
+
+
+def build_agent(spec: str, env: gym.Env, env_id: str, env_kwargs: Mapping[str, Any], seed: int) -> Agent:
+    """:func:`agents.load_agent` for an evaluation of ``env_id`` with ``env_kwargs`` (``random`` seeded with ``seed``)."""
+    return load_agent(spec, env, seed=seed, env_factory=lambda: gym.make(env_id, **env_kwargs))
+
+
+def run_episode(agent: Agent, env: gym.Env, seed: int) -> tuple[dict[str, Any], list[float]]:
+    """One episode of ``agent`` in ``env`` from ``env.reset(seed=seed)``.
+
+    Returns
+    -------
+    row : dict
+        The :data:`RESULT_COLUMNS` but ``agent`` and ``episode``.
+    map_errors : list of float
+        ``info["map_error"]`` after the reset and after every step.
+    """
+    observation, info = env.reset(seed=seed)
+    if hasattr(agent, "reset"):
+        agent.reset()
+    map_errors = [float(info["map_error"])]
+    squared = [float(np.sum((info["true_pose"][:2] - info["pose_estimate"][:2]) ** 2))]
+    total, length, walls, diverged, thinking = 0.0, 0, 0, False, 0.0
+    state, start = None, True
+    while True:
+        started = time.perf_counter()
+        action, state = agent.predict(observation, state=state, episode_start=np.array([start]), deterministic=True)
+        thinking += time.perf_counter() - started
+        start = False
+        observation, reward, terminated, truncated, info = env.step(np.asarray(action).reshape(2))
+        total += float(reward)
+        length += 1
+        walls += int(bool(info["wall_contact"]))
+        diverged = diverged or bool(info["diverged"])
+        map_errors.append(float(info["map_error"]))
+        squared.append(float(np.sum((info["true_pose"][:2] - info["pose_estimate"][:2]) ** 2)))
+        if terminated or truncated:
+            break
+    row = {
+        "seed": int(seed),
+        "final_map_error": map_errors[-1],
+        "initial_map_error": map_errors[0],
+        "pose_rmse": float(math.sqrt(np.mean(squared))),
+        "landmarks_mapped": int(info["landmarks_mapped"]),
+        "landmarks_total": int(info["landmarks_total"]),
+        "return": total,
+        "length": length,
+        "wall_contacts": walls,
+        "diverged": int(diverged),
+        "decision_time_ms": 1e3 * thinking / max(length, 1),
+    }
+    return row, map_errors
+
+
+def _carries_over(target: str) -> bool:
+    """Whether the agent of ``target`` carries state from one episode into the next (random's generator)."""
+    return target in BASELINES and baseline_class(target).carries_over_episodes
+
+
+def without_exact_nees(env_kwargs: Mapping[str, Any]) -> dict[str, Any]:
+    """``env_kwargs`` with ``exact_pose_nees=False`` unless they set it (:func:`make_evaluation_env`)."""
+    if not isinstance(env_kwargs, Mapping):
+        raise TypeError(f"env_kwargs must be a mapping, got {type(env_kwargs).__name__}")
+    return {"exact_pose_nees": False, **env_kwargs}
+
+
+def make_evaluation_env(env_id: str, env_kwargs: Mapping[str, Any]) -> gym.Env:
+    """The env an evaluation steps: ``gym.make(env_id, **env_kwargs)`` with ``exact_pose_nees=False``.
+
+    No metric of an evaluation reads ``info["pose_nees"]``, and its exact pose
+    marginal factorises the information matrix every step (on the large
+    world's 120-landmark maps 40% of an episode's time); everything else the
+    env computes is the same (``tests/test_agents.py``). ``env_kwargs`` may
+    still ask for it.
+    """
+    return gym.make(env_id, **without_exact_nees(env_kwargs))
+
+
+def _run_episodes(
+    env_id: str, env_kwargs: Mapping[str, Any], target: str, agent_seed: int, seeds: Sequence[int]
+) -> list[tuple[dict[str, Any], list[float], float, int]]:
+    """One task of :func:`evaluate_agents`: the agent of ``target`` on ``seeds``, in order, in a fresh env.
+
+    Returns, per episode, :func:`run_episode`'s row and map-error trace and
+    the planning seconds and plans it took (agents that plan and time it).
+    """
+    env = make_evaluation_env(env_id, env_kwargs)
+    try:
+        agent = build_agent(target, env, env_id, env_kwargs, agent_seed)
+        out = []
+        for episode_seed in seeds:
+            times = getattr(agent, "planning_times", None)
+            before = len(times) if times is not None else 0
+            row, trace = run_episode(agent, env, int(episode_seed))
+            times = getattr(agent, "planning_times", None)
+            new = times[before:] if times is not None else []
+            out.append((row, trace, float(sum(new)), len(new)))
+        return out
+    finally:
+        env.close()
+
+
+def evaluate_agents(
+    agent_specs: Sequence[str],
+    episodes: int,
+    seed: int,
+    env_id: str = LATEST_ID,
+    env_kwargs: Mapping[str, Any] | None = None,
+    *,
+    verbose: bool = False,
+    bootstrap: int = 0,
+    executor: Executor | None = None,
+    stored_run: str | os.PathLike | None = None,
+) -> tuple[list[dict[str, Any]], dict[str, Any]]:
+    """Run every agent on the seeds ``seed … seed + episodes − 1``.
+
+    Parameters
+    ----------
+    agent_specs : sequence of str
+        Baseline names (:data:`agents.BASELINES`), SB3 ``.zip`` paths,
+        ``rllib:CHECKPOINT``, each optionally ``LABEL=SPEC`` (:func:`agent_label`).
+    episodes : int
+        Episodes per agent.
+    seed : int
+        First seed.
+    env_id : str
+        A registered env id.
+    env_kwargs : mapping, optional
+        Keyword arguments of ``gym.make`` (may include ``max_episode_steps``).
+    verbose : bool
+        Progress on stderr: a bar over all episodes and one line per agent.
+    bootstrap : int
+        Resamples of the bootstrap interval of the paired differences (0: t interval only).
+    executor : agents.parallel.Executor, optional
+        Where the episodes run (default: one after another in this process);
+        the rows are the same on every executor but for ``decision_time_ms``.
+    stored_run : str or PathLike, optional
+        An earlier run's folder (:func:`load_stored_run`: same env, arguments
+        and seeds): its agents' episodes join this run's, after them, without
+        running again; its baselines count as baselines of the paired
+        comparison. Its labels may not repeat this run's.
+
+    Returns
+    -------
+    rows : list of dict
+        One per agent × episode, keys :data:`RESULT_COLUMNS`.
+    summary : dict
+        Keys :data:`SUMMARY_KEYS` (see the module docstring).
+    """
+    if isinstance(agent_specs, str):
+        agent_specs = [spec for spec in agent_specs.split(",") if spec]
+    if not agent_specs:
+        raise ValueError("give at least one agent")
+    if int(episodes) < 1:
+        raise ValueError(f"episodes must be positive, got {episodes}")
+    env_kwargs = dict(env_kwargs or {})
+    seeds = [int(seed) + k for k in range(int(episodes))]
+    executor = executor if executor is not None else Executor()
+    labelled = agent_labels(agent_specs)
+    for _, target in labelled:
+        check_agent_spec(target)  # before any episode runs
+    baselines = [label for label, target in labelled if target in BASELINES]
+    stored_rows: list[dict[str, Any]] = []
+    stored_agents: dict[str, Any] = {}
+    if stored_run is not None:  # read and checked before any episode runs
+        stored_rows, stored_agents = load_stored_run(stored_run, env_id, env_kwargs, seeds,
+                                                     [label for label, _ in labelled])  # fmt: skip
+        baselines += [label for label, entry in stored_agents.items() if entry["spec"] in BASELINES]
+    # tasks: runs of consecutive seeds of one agent; an agent whose state carries over between
+    # episodes (random's generator) gets all of its seeds in one task, as in a serial run
+    slots = executor.slots() if executor.kind != "serial" else 1
+    tasks: list[tuple[Any, ...]] = []
+    owner: list[int] = []
+    for number, (_, target) in enumerate(labelled):
+        for run in chunks(seeds, slots, together=_carries_over(target)):
+            tasks.append((env_id, env_kwargs, target, int(seed), run))
+            owner.append(number)
+    remaining = [owner.count(number) for number in range(len(labelled))]
+    collected: dict[int, list[tuple[dict[str, Any], list[float], float, int]]] = {}
+    started = time.perf_counter()
+    progress = Progress(len(labelled) * len(seeds), f"{env_id}", enabled=verbose, unit="episodes")
+
+    def episodes_of(number: int) -> list[tuple[dict[str, Any], list[float], float, int]]:
+        return [item for index in sorted(collected) if owner[index] == number for item in collected[index]]
+
+    def arrived(index: int, result: list[tuple[dict[str, Any], list[float], float, int]]) -> None:
+        number = owner[index]
+        label = labelled[number][0]
+        collected[index] = result
+        for row, _, _, _ in result:
+            progress.update(1, f"{label} seed {row['seed']}: {row['final_map_error']:.3f} m")
+        remaining[number] -= 1
+        if remaining[number] == 0:  # the agent's last task: its line
+            done = episodes_of(number)
+            plans = sum(count for _, _, _, count in done)
+            planning = sum(seconds for _, _, seconds, _ in done) / plans if plans else math.nan
+            extra = f", {1e3 * planning:.2f} ms per plan" if math.isfinite(planning) else ""
+            mean = float(np.mean([row["final_map_error"] for row, _, _, _ in done]))
+            progress.write(f"{label}: {len(seeds)} episodes after {time.perf_counter() - started:.1f} s, "
+                           f"final map error {mean:.3f} m{extra}")  # fmt: skip
+
+    with progress:
+        executor.map(_run_episodes, tasks, on_result=arrived)
+    rows: list[dict[str, Any]] = []
+    agents_summary: dict[str, Any] = {}
+    for number, (spec, (label, _)) in enumerate(zip(agent_specs, labelled)):
+        done = episodes_of(number)
+        agent_rows = [{"agent": label, "episode": episode, **row} for episode, (row, _, _, _) in enumerate(done)]
+        rows.extend(agent_rows)
+        entry: dict[str, Any] = {"spec": spec, "episodes": len(seeds)}
+        for metric in SUMMARY_METRICS:
+            entry[metric] = mean_ci([row[metric] for row in agent_rows])
+        entry["map_error_over_time"] = mean_curve([trace for _, trace, _, _ in done])
+        agents_summary[label] = entry
+    rows.extend(stored_rows)
+    agents_summary.update(stored_agents)
+    summary = {
+        "schema_version": SCHEMA_VERSION,
+        "env_id": env_id,
+        "env_kwargs": env_kwargs,
+        "episodes": len(seeds),
+        "seeds": seeds,
+        "metrics": list(SUMMARY_METRICS),
+        "agents": agents_summary,
+        "paired": paired_comparison(rows, baselines, bootstrap=bootstrap),
+        "stored_run": None if stored_run is None else str(stored_run),
+    }
+    return rows, summary

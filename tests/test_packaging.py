@@ -37,8 +37,14 @@ def test_wheel_ships_policies_configs_and_declares_its_imports(tmp_path):
         assert record.relative_to(ROOT).as_posix() in names
     for config in (ROOT / "agents" / "hyperparams").glob("*.yml"):
         assert f"agents/hyperparams/{config.name}" in names
-    for module in (ROOT / "seif_gym").rglob("*.py"):
-        assert module.relative_to(ROOT).as_posix() in names
+    assert "agents/policies/held_out.json" in names  # agents.list_pretrained's results
+    for package in ("seif_gym", "agents"):
+        for module in (ROOT / package).rglob("*.py"):
+            assert module.relative_to(ROOT).as_posix() in names
+    # the product alone: the lab, the tests and the research policies stay out of the wheel
+    assert {name.split("/")[0] for name in names if not name.startswith("seif_gym-")} == {"seif_gym", "agents"}
+    # a policy needs no optimizer state or value function to act: the shipped ones fit in 20 MB
+    assert wheel.stat().st_size <= 20 * 1024 * 1024, wheel.stat().st_size
     # PEP 561 markers: type checkers read the packages' own annotations
     assert {"seif_gym/py.typed", "agents/py.typed"} <= names
     metadata = zipfile.ZipFile(wheel).read(next(n for n in names if n.endswith(".dist-info/METADATA"))).decode()

@@ -42,7 +42,7 @@ extensions = [
     "docstrings",
     # docs/tasks/*.md from the gymnasium registry, docs/benchmark/leaderboard*.md from the json files
     "task_pages",
-    # "leaderboard_pages",
+    "leaderboard_pages",
     # the toctree's pages that other pages are still being written for
     "pending_pages",
 ]
@@ -55,6 +55,7 @@ exclude_patterns = [
     ".DS_Store",
     # prose included into the generated leaderboards, not pages of their own
     "benchmark/*_intro.md",
+    "benchmark/*_after.md",
     # GIF cache of the task pages
     "tasks/_gifs",
 ]
@@ -76,6 +77,18 @@ napoleon_numpy_docstring = True
 napoleon_use_rtype = False
 napoleon_use_ivar = True
 
+# -- generated pages -------------------------------------------------------------------------------
+# docs/_ext/leaderboard_pages.py: each run's json (what `python -m agents.benchmark` writes) -> its page
+leaderboard_pages = [
+    {"json": "leaderboard.json", "page": "benchmark/leaderboard.md", "intro": "benchmark/leaderboard_intro.md"},
+    {
+        "json": "leaderboard_v1.json",
+        "page": "benchmark/leaderboard_v1.md",
+        "intro": "benchmark/leaderboard_v1_intro.md",
+        "after": "benchmark/leaderboard_v1_after.md",
+    },
+]
+
 # -- math ------------------------------------------------------------------------------------------
 html_math_renderer = "mathml"
 
@@ -83,6 +96,8 @@ html_math_renderer = "mathml"
 html_theme = "furo"
 html_title = "seif_gym"
 html_short_title = "seif_gym"
+# a favicon of our own, so that browsers do not ask the server for /favicon.ico (a 404 in the console)
+html_favicon = "_static/favicon.svg"
 html_css_files = ["custom.css"]
 html_show_sourcelink = False
 html_copy_source = False

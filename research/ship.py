@@ -40,8 +40,9 @@ import shutil
 import sys
 import tempfile
 import zipfile
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
+from typing import Any
 
 from agents.checkpoints import vecnormalize_path
 from agents.loading import POLICY_DIR
@@ -66,6 +67,43 @@ CRITIC_PREFIXES = ("vf_features_extractor.", "mlp_extractor.value_net.", "value_
 _NAME = re.compile(r"[a-z][a-z0-9_]*")
 
 
+def _rewrite_state(model_zip: bytes, entry: str, change: Callable[[dict[str, Any]], None]) -> bytes:
+    """``model_zip`` with the torch ``state_dict`` of member ``entry`` changed in place by ``change``.
+
+    Every other member is copied as it is (with its own ``ZipInfo``).
+
+    Raises
+    ------
+    TypeError
+        If ``model_zip`` is not bytes.
+    ValueError
+        If it is not a zip archive holding ``entry``.
+    """
+    import torch
+
+    if not isinstance(model_zip, (bytes, bytearray)):
+        raise TypeError(f"model_zip must be bytes, got {type(model_zip).__name__}")
+    try:
+        source = zipfile.ZipFile(io.BytesIO(model_zip))
+    except zipfile.BadZipFile:
+        raise ValueError("model_zip: not a zip archive") from None
+    with source:
+        if entry not in source.namelist():
+            raise ValueError(f"model_zip: no {entry} (not an SB3 model)")
+        out = io.BytesIO()
+        with zipfile.ZipFile(out, "w", zipfile.ZIP_DEFLATED) as target:
+            for item in source.infolist():
+                data = source.read(item.filename)
+                if item.filename == entry:
+                    state = torch.load(io.BytesIO(data), map_location="cpu", weights_only=True)
+                    change(state)
+                    buffer = io.BytesIO()
+                    torch.save(state, buffer)
+                    data = buffer.getvalue()
+                target.writestr(item, data)
+    return out.getvalue()
+
+
 def empty_optimizer_moments(model_zip: bytes) -> bytes:
     """The SB3 model archive ``model_zip`` with its optimizer's per-parameter state emptied.
 
@@ -87,39 +125,22 @@ def empty_optimizer_moments(model_zip: bytes) -> bytes:
     ValueError
         If it is not a zip archive holding ``policy.optimizer.pth``.
     """
-    import torch
 
-    if not isinstance(model_zip, (bytes, bytearray)):
-        raise TypeError(f"model_zip must be bytes, got {type(model_zip).__name__}")
-    try:
-        source = zipfile.ZipFile(io.BytesIO(model_zip))
-    except zipfile.BadZipFile:
-        raise ValueError("model_zip: not a zip archive") from None
-    with source:
-        if OPTIMIZER_ENTRY not in source.namelist():
-            raise ValueError(f"model_zip: no {OPTIMIZER_ENTRY} (not an SB3 model)")
-        out = io.BytesIO()
-        with zipfile.ZipFile(out, "w", zipfile.ZIP_DEFLATED) as target:
-            for item in source.infolist():
-                data = source.read(item.filename)
-                if item.filename == OPTIMIZER_ENTRY:
-                    state = torch.load(io.BytesIO(data), map_location="cpu", weights_only=True)
-                    state["state"] = {}
-                    buffer = io.BytesIO()
-                    torch.save(state, buffer)
-                    data = buffer.getvalue()
-                target.writestr(item, data)
-    return out.getvalue()
+    def empty(state: dict[str, Any]) -> None:
+        state["state"] = {}
+
+    return _rewrite_state(model_zip, OPTIMIZER_ENTRY, empty)
 
 
 def for_acting(model_zip: bytes) -> bytes:
     """``model_zip`` as a policy that acts: optimizer moments emptied and the value function zeroed.
 
     Acting (``predict``) reads the actor alone: the features extractor of the policy, the policy
-    network, the action net and, for a recurrent policy, the actor's LSTM. The value function's tensors
-    (:data:`CRITIC_PREFIXES`, but those that share their storage with the actor's) keep their shapes, so Stable-Baselines3 still loads the file, but hold
-    zeros, which compress to nothing: the file acts exactly as the original and is no starting point
-    for further training (its value function and optimizer restart from zero).
+    network, the action net and, for a recurrent policy, the actor's LSTM. The value function's
+    tensors (:data:`CRITIC_PREFIXES`, but those that share their storage with the actor's) keep their
+    shapes, so Stable-Baselines3 still loads the file, but hold zeros, which compress to nothing: the
+    file acts exactly as the original and is no starting point for further training (its value
+    function and optimizer restart from zero).
 
     Raises
     ------
@@ -128,34 +149,18 @@ def for_acting(model_zip: bytes) -> bytes:
     """
     import torch
 
-    emptied = empty_optimizer_moments(model_zip)
-    with zipfile.ZipFile(io.BytesIO(emptied)) as source:
-        if POLICY_ENTRY not in source.namelist():
-            raise ValueError(f"model_zip: no {POLICY_ENTRY} (not an SB3 model)")
-        out = io.BytesIO()
-        with zipfile.ZipFile(out, "w", zipfile.ZIP_DEFLATED) as target:
-            for item in source.infolist():
-                data = source.read(item.filename)
-                if item.filename == POLICY_ENTRY:
-                    state = torch.load(io.BytesIO(data), map_location="cpu", weights_only=True)
-                    # a tensor the actor shares (the extractors may share layers) stays as it is
-                    actor = {
-                        v.untyped_storage().data_ptr() for k, v in state.items() if not k.startswith(CRITIC_PREFIXES)
-                    }
-                    critic = [
-                        key
-                        for key in state
-                        if key.startswith(CRITIC_PREFIXES) and state[key].untyped_storage().data_ptr() not in actor
-                    ]
-                    if not critic:
-                        raise ValueError("model_zip: no value-function tensors (not an actor-critic policy)")
-                    for key in critic:
-                        state[key] = torch.zeros_like(state[key])
-                    buffer = io.BytesIO()
-                    torch.save(state, buffer)
-                    data = buffer.getvalue()
-                target.writestr(item, data)
-    return out.getvalue()
+    def zero_critic(state: dict[str, Any]) -> None:
+        # a tensor the actor shares (the extractors may share layers) stays as it is
+        actor = {v.untyped_storage().data_ptr() for k, v in state.items() if not k.startswith(CRITIC_PREFIXES)}
+        critic = [
+            k for k, v in state.items() if k.startswith(CRITIC_PREFIXES) and v.untyped_storage().data_ptr() not in actor
+        ]
+        if not critic:
+            raise ValueError("model_zip: no value-function tensors (not an actor-critic policy)")
+        for key in critic:
+            state[key] = torch.zeros_like(state[key])
+
+    return _rewrite_state(empty_optimizer_moments(model_zip), POLICY_ENTRY, zero_critic)
 
 
 def _check_path(value: object, name: str) -> Path:

@@ -169,3 +169,27 @@ def test_the_command_ships_and_reports_errors_as_usage_errors(chosen, tmp_path, 
     with pytest.raises(SystemExit) as exit_info:
         main([str(chosen), "tiny_policy", "--config", config, "--policy-dir", str(policies)])
     assert exit_info.value.code == 2 and "is shipped already" in capsys.readouterr().err
+
+
+def test_for_acting_zeroes_the_value_function_and_acts_as_the_original(chosen, tmp_path):
+    import gymnasium as gym
+    from stable_baselines3 import PPO
+
+    from research.ship import POLICY_ENTRY, for_acting
+
+    original = chosen.read_bytes()
+    acting = tmp_path / "acting.zip"
+    acting.write_bytes(for_acting(original))
+    with zipfile.ZipFile(acting) as handle:
+        weights = torch.load(io.BytesIO(handle.read(POLICY_ENTRY)), weights_only=True)
+    assert not weights["value_net.weight"].any() and weights["action_net.weight"].any()
+    assert _optimizer_state(acting.read_bytes())["state"] == {}
+    full, lean = PPO.load(chosen, device="cpu"), PPO.load(acting, device="cpu")
+    env = gym.make("SeifExplore-v1", **TINY)
+    observation, _ = env.reset(seed=5)
+    for _ in range(10):
+        action = full.predict(observation, deterministic=True)[0]
+        np.testing.assert_array_equal(lean.predict(observation, deterministic=True)[0], action)
+        observation = env.step(action)[0]
+    with pytest.raises(ValueError, match="not a zip"):
+        for_acting(b"not a zip")

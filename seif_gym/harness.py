@@ -51,11 +51,10 @@ Metrics
 -------
 Collected per step by the ``callback`` of :func:`~seif_gym.episodes.replay`
 (after the measurement of time ``t``, ``t = 0 .. T``); ``e = truth − estimate``
-with the heading error wrapped to ``[-π, π)``.
+with the heading error wrapped to ``[-π, π)``. The metrics themselves live in
+:mod:`seif_gym.metrics`.
 
 * **pose error** ``‖e_xy‖`` (m) and the absolute heading error.
-The metrics themselves live in :mod:`seif_gym.metrics`.
-
 * **pose NEES** ``eᵀ P⁻¹ e`` (global frame, 3 dof) with the filter's
   *exact* marginal pose covariance ``P`` (``filter.pose_covariance``: a sparse
   solve for the information filters; never the SEIF's constant-time

@@ -111,13 +111,9 @@ def test_bad_model_arguments_raise(kwargs, match):
 
 
 def test_a_calibration_file_configures_the_env():
-    from pathlib import Path
+    from seif_gym.datasets.mrclam.calibration import DATASET6, Calibration
 
-    from seif_gym.datasets.mrclam_calibration import Calibration
-
-    calibration = Calibration.load(
-        Path(__file__).resolve().parents[1] / "seif_gym" / "datasets" / "mrclam6_calibration.json"
-    )
+    calibration = Calibration.load(DATASET6)
     env = SeifExploreEnv(**calibration.env_kwargs())
     assert isinstance(env.motion, PerSecondVelocityMotionModel) and isinstance(env.sensor, RangeDependentSensor)
     assert env.motion.forward == calibration.forward and env.motion.lateral == calibration.lateral

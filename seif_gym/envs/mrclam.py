@@ -4,7 +4,7 @@
 
 `SeifExploreEnv` with the world, robot and sensor of MRCLAM Dataset 6
 (Leung et al., IJRR 2011), as measured by `python -m seif_gym.datasets.mrclam
-calibrate` and shipped in `seif_gym/datasets/mrclam6_calibration.json`
+calibrate` and shipped in `seif_gym/datasets/mrclam/mrclam6_calibration.json`
 (`Calibration.world`, `describe_world`):
 
 | | simulated | from the logs |
@@ -23,7 +23,7 @@ origin (`MRCLAM_ORIGIN` is the dataset point at the origin). Everything else
 (spaces, rewards, episode end, info) is `SeifExploreEnv`'s; the default
 filter is the SEIF with `k = 8`.
 
-What the simulator leaves out (docs/mrclam.md measures them on the logs): the
+What the simulator leaves out (the docs' MRCLAM page measures them on the logs): the
 real errors are heavy-tailed (the bearings' too are correlated in time), barcodes are misread, the
 commands are biased (the logs need `CommandCorrection`; the simulated robot
 executes its commands with the calibrated noise only), and the camera sees

@@ -45,7 +45,7 @@ logger = logging.getLogger(__name__)
 #: Frames of each task's GIF, one every ``GIF_STRIDE`` steps of the episode, and their size and pace.
 GIF_FRAMES = 40
 GIF_STRIDE = 3
-GIF_WIDTH = 320
+GIF_WIDTH = 400
 GIF_FRAME_MS = 150
 GIF_SEED = 0
 #: The docstring's sections in the order of the page; "Version History" comes from the changelog.
@@ -367,9 +367,9 @@ def family_page(
         layout = world["layout"]
         layout_text = layouts.get(layout)
         out += [
-            f"The `{layout}` layout"
-            + (f" ({layout_text.rstrip('.')})" if layout_text else "")
-            + f": {world['landmarks']} landmarks in a {world['arena']} arena, {steps} steps per episode.",
+            f"Layout `{layout}`"
+            + (f": {layout_text.rstrip('.')}." if layout_text else ".")
+            + f" {world['landmarks']} landmarks in a {world['arena']} arena, {steps} steps per episode.",
             "",
         ]
         if steps is not None and steps < 400:

@@ -1,38 +1,41 @@
-"""The leaderboard: every baseline and every shipped policy on every registered variant.
+"""The leaderboard: every baseline and every shipped policy on every task of a version.
 
 Usage::
 
-    python -m agents.benchmark [--variants SeifExplore,SeifExploreLoop,...] [--version 1]
+    python -m agents.benchmark [--tasks SeifExplore,SeifExploreLoop-v2,...] [--version 2]
         [--episodes N] [--seed 1000000] [--agents ...] [--jobs 2 | --workers 16 | --ray auto]
         [--out benchmark] [--quiet]
 
-The protocol is in ``docs/benchmark.md``: each variant is run on the same
-*held-out* seeds ``seed … seed + episodes − 1`` (default 1 000 000 …
-1 000 099, and … 1 000 399 on the short budget tasks,
-:func:`held_out_episodes`; training and checkpoint selection never reset
-with them), every
-agent on the same seeds, deterministic actions, through
-:func:`agents.evaluate.evaluate_agents`. For each variant the agents are
+A task is a registered env id, or a family (``SeifExploreLoop``) for its
+``--version`` (default: the family's newest); without ``--tasks``, every
+family at the newest version (:func:`default_variants`). The protocol is in
+``docs/benchmark.md``: each task is run on the same *held-out* seeds
+``seed … seed + episodes − 1`` (default 1 000 000 … 1 000 099, and
+… 1 000 399 on the short budget tasks,
+:func:`agents.protocol.held_out_episodes`; training and checkpoint selection
+never reset with them), every agent on the same seeds, deterministic actions,
+through :func:`agents.evaluate.evaluate_agents`. For each task the agents are
 compared with the best baseline (the baseline of lowest mean final map error)
 by the paired per-seed difference of their final map errors, with a 95 %
 Student-t interval; an agent *beats* the best baseline only when that interval
-lies below zero (:func:`agents.evaluate.paired_comparison`, the statistics'
-one home).
+lies below zero (:func:`agents.evaluate.paired_comparison`).
 
-A shipped policy (:data:`SHIPPED_POLICIES`) runs on every variant whose
-observation and action spaces it accepts; on the others it is left out and
-the leaderboard says so.
+``--agents`` takes what ``agents.evaluate`` takes (default: the baselines and
+the shipped exploration policies, :data:`EXPLORERS`). A saved model (a shipped
+policy, ``PATH.zip``) runs on every task whose observation and action spaces
+it accepts (:func:`policy_fits`); on the others it is left out and the
+leaderboard says so.
 
 Written to ``--out``:
 
 ``leaderboard.md``
-    One table per variant (agents by mean final map error) and the verdicts.
+    One table per task (agents by mean final map error) and the verdicts.
 ``leaderboard.csv`` / ``leaderboard.json``
-    One row per variant × agent: :data:`LEADERBOARD_COLUMNS`.
+    One row per task × agent: :data:`LEADERBOARD_COLUMNS`.
 ``<env id>/``
-    :func:`agents.evaluate.write_outputs` of that variant: ``results.csv``
+    :func:`agents.evaluate.write_outputs` of that task: ``results.csv``
     (per episode), ``summary.json``, ``summary.md`` and ``map_error.png``
-    (map error over time, the plot of the variant).
+    (map error over time).
 """
 
 from __future__ import annotations
@@ -40,6 +43,7 @@ from __future__ import annotations
 import argparse
 import csv
 import json
+import os
 import sys
 import time
 from collections.abc import Mapping, Sequence
@@ -49,9 +53,10 @@ from typing import Any
 import gymnasium as gym
 
 import seif_gym
-from agents import BASELINES
+from agents.baselines import BASELINES
+from agents.cli import add_deprecated_alias, agents_help, resolve_tasks, tasks_epilog
 from agents.evaluate import evaluate_agents, write_outputs
-from agents.loading import SHIPPED_POLICIES, ShippedPolicy
+from agents.loading import SHIPPED_POLICIES, ShippedPolicy, agent_label, check_agent_spec
 from agents.memories import policy_view
 from agents.parallel import Executor
 from agents.parallel import add_arguments as add_executor_arguments
@@ -99,37 +104,49 @@ LEADERBOARD_COLUMNS: tuple[str, ...] = (
 
 
 def default_variants(version: int | None = None) -> list[str]:
-    """The env ids of every layout at ``version`` (default the newest), in registration order."""
+    """The env ids of every task family registered at ``version``, in registration order.
+
+    Parameters
+    ----------
+    version : int, optional
+        Default :data:`seif_gym.LATEST_VERSION`.
+
+    Raises
+    ------
+    ValueError
+        If ``version`` is not one of :data:`seif_gym.VERSIONS`.
+    """
     version = seif_gym.LATEST_VERSION if version is None else version
     if version not in seif_gym.VERSIONS:
         raise ValueError(f"version must be one of {sorted(seif_gym.VERSIONS)}, got {version!r}")
     return [env_id for env_id in seif_gym.VARIANTS if env_id.endswith(f"-v{version}")]
 
 
-def _resolve_variants(names: Sequence[str], version: int | None) -> list[str]:
-    """Env ids from layout names (``SeifExploreLoop``) or ids (``SeifExploreLoop-v0``)."""
-    known = default_variants(version)
-    resolved: list[str] = []
-    for name in names:
-        if name in seif_gym.VARIANTS:
-            env_id = name
-        else:
-            matches = [env_id for env_id in known if env_id.rsplit("-v", 1)[0] == name]
-            if not matches:
-                layouts = sorted({env_id.rsplit("-v", 1)[0] for env_id in seif_gym.VARIANTS})
-                raise ValueError(f"variants: unknown variant {name!r} (layouts: {', '.join(layouts)}; or an env id)")
-            env_id = matches[0]
-        if env_id not in resolved:
-            resolved.append(env_id)
-    return resolved
+def policy_fits(policy: ShippedPolicy | str | os.PathLike, env_id: str) -> bool:
+    """Whether a saved model accepts the observation and action spaces of ``env_id``.
 
+    Parameters
+    ----------
+    policy : ShippedPolicy, str or PathLike
+        A shipped policy, or the path of a saved SB3 / sb3-contrib model.
+    env_id : str
+        A registered env id.
 
-def policy_fits(policy: ShippedPolicy, env_id: str) -> bool:
-    """Whether ``policy`` accepts the observation and action spaces of ``env_id``."""
-    model = sb3_algorithm(policy.path).load(policy.path, device="cpu")
+    Returns
+    -------
+    bool
+        Whether the spaces match, once the entries the policy computes itself (the budget's clock,
+        a memory) are added to the env's (:func:`agents.memories.policy_view`).
+
+    Raises
+    ------
+    ValueError
+        If the path is not a saved model of PPO, RecurrentPPO or SAC (:func:`agents.sb3_agent.sb3_algorithm`).
+    """
+    path = policy.path if isinstance(policy, ShippedPolicy) else Path(policy)
+    model = sb3_algorithm(path).load(path, device="cpu")
     env = gym.make(env_id)
     try:
-        # a policy with entries of its own (the budget's clock, the coverage memory) adds them itself
         space = policy_view(env, model.observation_space).observation_space
         return model.observation_space == space and model.action_space == env.action_space
     finally:
@@ -138,27 +155,45 @@ def policy_fits(policy: ShippedPolicy, env_id: str) -> bool:
 
 def benchmark_variant(env_id: str, agents: Sequence[str], episodes: int, seed: int, out: Path,
                       verbose: bool = False, executor: Executor | None = None) -> list[dict[str, Any]]:  # fmt: skip
-    """Run ``agents`` (baseline names and shipped-policy labels) on ``env_id``; the leaderboard rows.
+    """Run ``agents`` on the task ``env_id`` and write its files; the task's leaderboard rows.
 
-    Writes the variant's :func:`~agents.evaluate.write_outputs` into ``out / env_id``. ``executor``
-    runs the variant's episodes (default: this process).
+    Parameters
+    ----------
+    env_id : str
+        A registered env id.
+    agents : sequence of str
+        Agent specs (:func:`agents.loading.load_agent`, each optionally ``LABEL=SPEC``); a saved
+        model whose spaces do not fit ``env_id`` (:func:`policy_fits`) is left out.
+    episodes, seed : int
+        The seeds ``seed … seed + episodes − 1``.
+    out : Path
+        :func:`agents.evaluate.write_outputs` goes to ``out / env_id``.
+    verbose : bool
+        Progress on stderr.
+    executor : agents.parallel.Executor, optional
+        Runs the task's episodes (default: this process).
+
+    Returns
+    -------
+    list of dict
+        One row per agent, keys :data:`LEADERBOARD_COLUMNS`; a left-out agent has ``episodes`` 0.
     """
     specs: list[str] = []
-    labels: dict[str, str] = {}
     kinds: dict[str, str] = {}
     skipped: list[str] = []
-    for name in agents:
-        if name in BASELINES:
-            specs.append(name)
-            labels[name], kinds[name] = name, "baseline"
-        else:
-            policy = SHIPPED_POLICIES[name]
-            if not policy_fits(policy, env_id):
-                skipped.append(name)
-                continue
-            # labelled by its leaderboard name, so the variant's own summary says what the leaderboard says
-            specs.append(f"{name}={policy.path}")
-            labels[name], kinds[name] = name, "policy"
+    for spec in agents:
+        label, target = agent_label(spec)
+        if target in BASELINES:
+            specs.append(spec)
+            kinds[label] = "baseline"
+            continue
+        model = SHIPPED_POLICIES[target] if target in SHIPPED_POLICIES else target
+        if not target.startswith("rllib:") and not policy_fits(model, env_id):
+            skipped.append(label)
+            continue
+        # labelled by its leaderboard name, so the task's own summary says what the leaderboard says
+        specs.append(f"{label}={model.path if isinstance(model, ShippedPolicy) else target}")
+        kinds[label] = "policy"
     started = time.perf_counter()
     rows, summary = evaluate_agents(
         specs, episodes=episodes, seed=seed, env_id=env_id, env_kwargs={}, verbose=verbose, executor=executor
@@ -167,17 +202,16 @@ def benchmark_variant(env_id: str, agents: Sequence[str], episodes: int, seed: i
     if verbose:
         print(f"{env_id}: {len(specs)} agents x {episodes} episodes in {time.perf_counter() - started:.0f} s"
               + (f" (left out, spaces differ: {', '.join(skipped)})" if skipped else ""), file=sys.stderr)  # fmt: skip
-    # the paired comparison with the best baseline is agents.evaluate's (one home for the statistics)
     paired = summary["paired"]
     best = paired["reference"]
     table: list[dict[str, Any]] = []
     for label, entry in summary["agents"].items():
         row: dict[str, Any] = {
-            "env_id": env_id, "agent": labels[label], "kind": kinds[label], "episodes": entry["episodes"],
+            "env_id": env_id, "agent": label, "kind": kinds[label], "episodes": entry["episodes"],
             "final_map_error": entry["final_map_error"]["mean"],
             "final_map_error_ci95": entry["final_map_error"]["ci95_half_width"],
             "pose_rmse": entry["pose_rmse"]["mean"], "landmarks_mapped": entry["landmarks_mapped"]["mean"],
-            "return": entry["return"]["mean"], "best_baseline": labels[best] if best else None,
+            "return": entry["return"]["mean"], "best_baseline": best,
             "difference": None, "difference_ci95_low": None, "difference_ci95_high": None, "verdict": "",
         }  # fmt: skip
         if label == best:
@@ -195,13 +229,43 @@ def benchmark_variant(env_id: str, agents: Sequence[str], episodes: int, seed: i
 
 def run_benchmark(variants: Sequence[str], agents: Sequence[str], episodes: int | None, seed: int, out: str | Path,
                   jobs: int = 1, verbose: bool = False, executor: Executor | None = None) -> list[dict[str, Any]]:  # fmt: skip
-    """Every agent on every variant; writes the leaderboard files.
+    """Every agent on every task; writes the leaderboard files.
 
-    ``episodes`` per agent and variant; ``None``: the protocol's (:func:`held_out_episodes`).
-    Two ways to spread the work: ``jobs`` processes, one variant each (the largest variant
-    sets the wall time), or ``executor`` (:class:`agents.parallel.Executor`: local processes or
-    a Ray cluster), which runs the variants one after another with each variant's episodes
-    spread over all of its slots. Either gives the rows of one process.
+    Parameters
+    ----------
+    variants : sequence of str
+        Registered env ids (the tasks).
+    agents : sequence of str
+        Agent specs, as :func:`benchmark_variant` takes them; their labels must be distinct.
+    episodes : int or None
+        Per agent and task; ``None``: the protocol's (:func:`agents.protocol.held_out_episodes`).
+    seed : int
+        The first held-out seed.
+    out : str or Path
+        The output folder.
+    jobs : int
+        Processes, one task each (the largest task sets the wall time).
+    verbose : bool
+        Progress on stderr.
+    executor : agents.parallel.Executor, optional
+        Local processes or a Ray cluster that run the tasks one after another, each task's episodes
+        spread over all of its slots; excludes ``jobs`` > 1. Every way gives the rows of one process.
+
+    Returns
+    -------
+    list of dict
+        The rows of ``leaderboard.csv`` (:data:`LEADERBOARD_COLUMNS`).
+
+    Raises
+    ------
+    TypeError
+        If ``executor`` is not an :class:`~agents.parallel.Executor`.
+    ValueError
+        If ``episodes`` or ``jobs`` is not a positive count, both ``jobs`` > 1 and a parallel
+        ``executor`` are given, an agent is unknown or its label repeats, or a task is not
+        registered (all before anything is written).
+    FileNotFoundError
+        If a saved model's path does not exist.
     """
     if episodes is not None:
         as_count(episodes, "episodes", minimum=1)
@@ -212,9 +276,16 @@ def run_benchmark(variants: Sequence[str], agents: Sequence[str], episodes: int 
         raise ValueError(
             f"jobs: {jobs} processes of variants and an executor of episodes ({executor!r}) exclude each other"
         )
-    unknown = [name for name in agents if name not in BASELINES and name not in SHIPPED_POLICIES]
-    if unknown:
-        raise ValueError(f"agents: unknown {unknown} (baselines {list(BASELINES)}, policies {list(SHIPPED_POLICIES)})")
+    labels: list[str] = []
+    for spec in agents:
+        label, target = agent_label(spec)
+        try:
+            check_agent_spec(target)
+        except ValueError as error:
+            raise ValueError(f"agents: {error}") from None
+        if label in labels:
+            raise ValueError(f"agents: the label {label!r} repeats (name them LABEL=SPEC)")
+        labels.append(label)
     # before anything is written: an unknown variant leaves no folder behind
     counts = {env_id: held_out_episodes(env_id) for env_id in variants}  # checks each id is registered
     if episodes is not None:
@@ -273,39 +344,63 @@ def leaderboard_markdown(rows: Sequence[Mapping[str, Any]], seed: int) -> str:
     return "\n".join(lines)
 
 
-def main(argv: Sequence[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--variants", default="", help="comma-separated layouts or env ids (default: every layout)")
-    parser.add_argument("--version", type=int, default=None, help="version of the layouts (default: the newest)")
+def _parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="python -m agents.benchmark",
+        description="The leaderboard: every baseline and shipped policy on every task of a version.",
+        epilog=f"{agents_help()}\n\n{tasks_epilog('--tasks')}\n\nThe protocol: docs/benchmark.md.",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    parser.add_argument("--tasks", default="", metavar="TASK,...",
+                        help="comma-separated env ids or families (default: every family at --version)")  # fmt: skip
+    add_deprecated_alias(parser, "--variants", "--tasks")
+    parser.add_argument("--version", type=int, default=None,
+                        help="the version a family stands for (default: each family's newest; without --tasks, "
+                        f"the newest version, {seif_gym.LATEST_VERSION})")  # fmt: skip
     parser.add_argument(
         "--episodes",
         type=int,
         default=None,
-        help=f"held-out episodes per agent and variant (default: the protocol's, {SHORT_TASK_HELD_OUT_EPISODES} on "
+        help=f"held-out episodes per agent and task (default: the protocol's, {SHORT_TASK_HELD_OUT_EPISODES} on "
         f"tasks of at most {SHORT_TASK_STEPS} steps, {HELD_OUT_EPISODES} on the others)",
     )
     parser.add_argument("--seed", type=int, default=HELD_OUT_SEED, help="first held-out seed (default %(default)s)")
     parser.add_argument("--agents", default=",".join([*BASELINES, *EXPLORERS]),
-                        help="comma-separated baselines and shipped policies (default: all)")  # fmt: skip
-    parser.add_argument("--jobs", type=int, default=1, help="worker processes, one variant each")
+                        help="comma-separated agents (default: the baselines and the shipped exploration policies)")  # fmt: skip
+    parser.add_argument("--jobs", type=int, default=1, help="worker processes, one task each")
     parser.add_argument("--out", default="benchmark", help="output folder (default %(default)s)")
     parser.add_argument("--quiet", action="store_true", help="no progress on stderr")
-    add_executor_arguments(parser)  # --workers / --ray: each variant's episodes spread over them
+    add_executor_arguments(parser)  # --workers / --ray: each task's episodes spread over them
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run ``python -m agents.benchmark`` with ``argv`` (default ``sys.argv[1:]``); prints the leaderboard.
+
+    Returns
+    -------
+    int
+        The exit status, 0; a bad argument exits through ``argparse`` (status 2) before anything is written.
+    """
+    parser = _parser()
     args = parser.parse_args(argv)
     executor = executor_from_arguments(args, parser)
+    names = [name.strip() for name in args.tasks.split(",") if name.strip()]
     try:
-        names = [name.strip() for name in args.variants.split(",") if name.strip()]
-        variants = _resolve_variants(names, args.version) if names else default_variants(args.version)
+        variants = resolve_tasks(names, args.version) if names else default_variants(args.version)
+    except ValueError as error:
+        parser.error(f"--tasks: {error}" if names else f"--version: {error}")
+    try:
         agents = [name.strip() for name in args.agents.split(",") if name.strip()]
         started = time.perf_counter()
         run_benchmark(variants, agents, args.episodes, args.seed, args.out, jobs=args.jobs, verbose=not args.quiet,
                       executor=executor)  # fmt: skip
-    except ValueError as error:
+    except (ValueError, FileNotFoundError) as error:
         parser.error(str(error))
     print((Path(args.out) / "leaderboard.md").read_text())
     if not args.quiet:
-        print(f"{len(variants)} variants in {time.perf_counter() - started:.0f} s; wrote {args.out}/leaderboard.md, "
-              f".csv, .json and one folder per variant", file=sys.stderr)  # fmt: skip
+        print(f"{len(variants)} tasks in {time.perf_counter() - started:.0f} s; wrote {args.out}/leaderboard.md, "
+              f".csv, .json and one folder per task", file=sys.stderr)  # fmt: skip
     return 0
 
 

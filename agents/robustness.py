@@ -1,35 +1,33 @@
-r"""The filter robustness harness with policies: ``python -m agents.robustness``.
+r"""The filter robustness harness with agents: ``python -m agents.robustness``.
 
 .. code-block:: bash
 
-    python -m agents.robustness --policies random,frontier,revisit,ppo=runs/ppo/model.zip \
-        --layouts uniform,loop --seeds 5 --seed 0 --steps 300 --out eval/robustness \
-        [--workers N | --ray auto|ADDRESS] [--quiet]
+    python -m agents.robustness --agents random,frontier,revisit,ppo=runs/ppo/model.zip \
+        --layouts uniform,loop --episodes 5 --seed 0 --steps 300 --out eval/robustness \
+        [--env SeifExplore-v2] [--workers N | --ray auto|ADDRESS] [--quiet]
 
-For every (policy, layout, seed) one episode of ``--env`` (default
-``SeifExplore-v0``, on which ``docs/robustness.md`` was measured; pass
-``--env SeifExplore-v1`` for the current filters; with ``layout=`` the layout
-and ``max_episode_steps=`` ``--steps``) is **recorded once** (the policy acts
-on the env's own SEIF through :class:`~seif_gym.episodes.EpisodeRecorder`,
-exactly as it would in training; :func:`record_episode`) and then
-**replayed** through every filter of ``--filters`` and scored by
-:mod:`seif_gym.harness`, whose docstring defines the filters, the metrics
-and the outputs. This module adds only what needs the agents: building the
-policies and driving the recording. ``python -m seif_gym.harness
---episodes DIR`` scores saved episodes again without them.
+For every (agent, layout, seed) one episode of ``--env`` (default the newest
+task, :data:`seif_gym.LATEST_ID`; with ``layout=`` the layout, default the
+task's own, and ``max_episode_steps=`` ``--steps``) is **recorded once** (the
+agent acts on the env's own SEIF through
+:class:`~seif_gym.episodes.EpisodeRecorder`, exactly as it would in training;
+:func:`record_episode`) and then **replayed** through every filter of
+``--filters`` and scored by :mod:`seif_gym.harness`, whose docstring defines
+the filters, the metrics and the outputs (where an agent is a *policy*: the
+``policy`` column). This module adds only what needs the agents: building
+them and driving the recording. ``python -m seif_gym.harness --episodes-dir
+DIR`` scores saved episodes again without them.
 
-Policies (``--policies``, comma separated; default every baseline of
-:data:`agents.BASELINES`): baseline names, the path of a Stable-Baselines3
-``.zip`` (with ``vecnormalize.pkl`` beside it when present) or
-``rllib:CHECKPOINT``, each optionally labelled ``LABEL=SPEC``
-(:func:`agents.evaluate.agent_label`). Every policy acts with
+Agents (``--agents``, comma separated; default every baseline of
+:data:`agents.BASELINES`): what :func:`agents.loading.load_agent` builds,
+each optionally labelled ``LABEL=SPEC``. Every agent acts with
 ``deterministic=True``; ``random`` is seeded with the episode seed. Progress
 goes to stderr (``--quiet``: none). The episodes are recorded and replayed one
 after another in this process, on ``--workers N`` local processes or as Ray
-tasks on a cluster (``--ray``; :mod:`agents.parallel`, ``docs/ray.md``): the
-rows are the same but for the measured times.
+tasks on a cluster (``--ray``; :mod:`agents.parallel`): the rows are the same
+but for the measured times.
 
-``--paired-against LABEL`` compares every other policy with ``LABEL``, per
+``--paired-against LABEL`` compares every other agent with ``LABEL``, per
 filter and metric, over the episodes they share (the same layout and seed:
 the same landmarks, start and noise seed): the mean per-episode difference
 with its Student-t and bootstrap 95% intervals, and for the NEES metrics,
@@ -51,6 +49,19 @@ from typing import Any, cast
 
 import gymnasium as gym
 import numpy as np
+
+import seif_gym  # noqa: F401  (registers the environments)
+from agents.base import Agent
+from agents.baselines import BASELINES
+from agents.cli import add_deprecated_alias, agents_help, json_object, task, tasks_epilog
+from agents.evaluate import build_agent, paired_difference, paired_verdict, run_episode
+from agents.loading import agent_labels, check_agent_spec
+from agents.parallel import Executor, chunks
+from agents.parallel import add_arguments as add_executor_arguments
+from agents.parallel import from_arguments as executor_from_arguments
+from seif_gym import LATEST_ID
+from seif_gym.envs.explore import SeifExploreEnv
+from seif_gym.episodes import Episode, EpisodeRecorder
 from seif_gym.harness import (
     RESULT_COLUMNS,
     FilterSpec,
@@ -61,23 +72,6 @@ from seif_gym.harness import (
     warm_up,
     write_outputs,
 )
-
-import seif_gym  # noqa: F401  (registers the environments)
-from agents.baselines import BASELINES, Agent
-from agents.cli import json_object
-from agents.evaluate import (
-    agent_labels,
-    build_agent,
-    check_agent_spec,
-    paired_difference,
-    paired_verdict,
-    run_episode,
-)
-from agents.parallel import Executor, chunks
-from agents.parallel import add_arguments as add_executor_arguments
-from agents.parallel import from_arguments as executor_from_arguments
-from seif_gym.envs.explore import SeifExploreEnv
-from seif_gym.episodes import Episode, EpisodeRecorder
 from seif_gym.progress import Progress
 from seif_gym.threads import limit_blas_threads
 from seif_gym.world import LAYOUTS
@@ -131,12 +125,12 @@ def record_episode(env: EpisodeRecorder, agent: Agent, seed: int) -> Episode:
 
 def evaluate(
     policies: Sequence[str],
-    layouts: Sequence[str] = ("uniform",),
+    layouts: Sequence[str] | None = None,
     seeds: Sequence[int] = (0,),
     steps: int = 300,
     filters: Sequence[str | FilterSpec] | None = None,
     *,
-    env_id: str = "SeifExplore-v0",
+    env_id: str = LATEST_ID,
     env_kwargs: Mapping[str, Any] | None = None,
     nees_every: int = 1,
     episode_dir: str | Path | None = None,
@@ -149,8 +143,8 @@ def evaluate(
     ----------
     policies : sequence of str
         Agent specs (see the module docstring).
-    layouts : sequence of str
-        Values of the env's ``layout`` (:data:`seif_gym.world.LAYOUTS`).
+    layouts : sequence of str, optional
+        Values of the env's ``layout`` (:data:`seif_gym.world.LAYOUTS`); default the task's own.
     seeds : sequence of int
         ``env.reset`` seeds; the same for every policy and layout.
     steps : int
@@ -181,13 +175,13 @@ def evaluate(
     """
     if isinstance(policies, str):
         policies = [p for p in policies.split(",") if p]
-    if not policies or not layouts or not len(seeds):
+    if not policies or (layouts is not None and not layouts) or not len(seeds):
         raise ValueError("give at least one policy, one layout and one seed")
     if int(steps) < 1:
         raise ValueError(f"steps must be positive, got {steps}")
     if int(nees_every) < 1:
         raise ValueError(f"nees_every must be positive, got {nees_every}")
-    unknown = [layout for layout in layouts if layout not in LAYOUTS]
+    unknown = [layout for layout in layouts or () if layout not in LAYOUTS]
     if unknown:
         raise ValueError(f"layouts: unknown {unknown}; use {', '.join(LAYOUTS)}")
     specs = parse_filters(filters)
@@ -205,6 +199,7 @@ def evaluate(
         config = dict(cast(SeifExploreEnv, template.unwrapped).config)
     finally:
         template.close()
+    layouts = [str(config["layout"])] if layouts is None else list(layouts)
     executor = executor if executor is not None else Executor()
     slots = executor.slots() if executor.kind != "serial" else 1
     # tasks: runs of consecutive seeds of one (policy, layout); random is seeded per episode, so every
@@ -435,22 +430,27 @@ def _split(text: str) -> list[str]:
 def _parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="python -m agents.robustness",
-        description="Record episodes once per (policy, layout, seed) and replay them through every filter.",
-        epilog="The metrics and outputs: python -c 'import seif_gym.harness as e; help(e)'.",
+        description="Record episodes once per (agent, layout, seed) and replay them through every filter.",
+        epilog=f"{agents_help()}\n\n{tasks_epilog()}\n\n"
+        "The metrics and outputs: python -c 'import seif_gym.harness as h; help(h)'.",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    parser.add_argument("--policies", default=",".join(DEFAULT_POLICIES),
-                        help=f"comma-separated baselines ({', '.join(BASELINES)}), PATH.zip, rllib:CHECKPOINT, "
-                             "each optionally LABEL=SPEC")  # fmt: skip
-    parser.add_argument(
-        "--layouts", default="uniform", help=f"comma-separated layouts from {', '.join(LAYOUTS)} (default uniform)"
-    )
-    parser.add_argument("--seeds", type=int, default=5, help="episodes per policy and layout (default 5)")
+    parser.add_argument("--agents", default=",".join(DEFAULT_POLICIES),
+                        help="comma-separated agents (see below; default: the baselines)")  # fmt: skip
+    add_deprecated_alias(parser, "--policies", "--agents")
+    parser.add_argument("--layouts", default=None,
+                        help=f"comma-separated landmark layouts, the env's layout keyword: {', '.join(LAYOUTS)} "
+                        "(default: the task's own)")  # fmt: skip
+    parser.add_argument("--episodes", type=int, default=5, metavar="N",
+                        help="episodes per agent and layout (default %(default)s)")  # fmt: skip
+    add_deprecated_alias(parser, "--seeds", "--episodes", type=int, metavar="N")
     parser.add_argument("--seed", type=int, default=0, help="first seed (default 0): seeds S .. S+N-1")
     parser.add_argument("--steps", type=int, default=300, help="episode length, max_episode_steps (default 300)")
     parser.add_argument(
         "--filters", default=None, help=f"comma-separated filters (default {','.join(default_filters())})"
     )
-    parser.add_argument("--env", default="SeifExplore-v0", help="registered env id (default SeifExplore-v0)")
+    parser.add_argument("--env", type=task, default=LATEST_ID, metavar="TASK",
+                        help="registered env id or family (default %(default)s)")  # fmt: skip
     parser.add_argument(
         "--env-kwargs", type=json_object, default="{}", help="JSON object of further gym.make keyword arguments"
     )
@@ -462,7 +462,7 @@ def _parser() -> argparse.ArgumentParser:
         "--paired-against",
         default=None,
         metavar="LABEL",
-        help="compare every other policy with this one, paired over (layout, seed): paired.md/.csv",
+        help="compare every other agent with this one, paired over (layout, seed): paired.md/.csv",
     )
     parser.add_argument(
         "--paired-metrics",
@@ -477,29 +477,37 @@ def _parser() -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Command-line entry point; returns the exit status."""
+    """Run ``python -m agents.robustness`` with ``argv`` (default ``sys.argv[1:]``).
+
+    Returns
+    -------
+    int
+        The exit status, 0; a bad argument exits through ``argparse`` (status 2) before any episode runs.
+    """
     parser = _parser()
     args = parser.parse_args(argv)
-    if args.seeds < 1 or args.steps < 1 or args.nees_every < 1:
-        parser.error("--seeds, --steps and --nees-every must be positive")
-    layouts = _split(args.layouts)
-    unknown = [layout for layout in layouts if layout not in LAYOUTS]
-    if unknown:
-        parser.error(f"unknown layout(s) {unknown}; use {', '.join(LAYOUTS)}")
+    if args.episodes < 1 or args.steps < 1 or args.nees_every < 1:
+        parser.error("--episodes, --steps and --nees-every must be positive")
+    layouts: list[str] | None = None
+    if args.layouts is not None:
+        layouts = _split(args.layouts)
+        unknown = [layout for layout in layouts if layout not in LAYOUTS]
+        if unknown or not layouts:
+            parser.error(f"--layouts: unknown layout(s) {unknown}; use {', '.join(LAYOUTS)}")
     filters = _split(args.filters) if args.filters else default_filters()
-    policies = _split(args.policies)
+    policies = _split(args.agents)
     try:
         specs = parse_filters(filters)
         for _, target in agent_labels(policies):
             check_agent_spec(target)
     except (ValueError, FileNotFoundError) as error:
         parser.error(str(error))
-    seeds = list(range(args.seed, args.seed + args.seeds))
+    seeds = list(range(args.seed, args.seed + args.episodes))
     paired_metrics = _split(args.paired_metrics)
     if args.paired_against is not None:
         labels = [label for label, _ in agent_labels(policies)]
         if args.paired_against not in labels:
-            parser.error(f"--paired-against: {args.paired_against!r} is not a policy label ({', '.join(labels)})")
+            parser.error(f"--paired-against: {args.paired_against!r} is not an agent's label ({', '.join(labels)})")
         unknown_metrics = [m for m in paired_metrics if m not in RESULT_COLUMNS]
         if unknown_metrics:
             parser.error(f"--paired-metrics: not result columns: {unknown_metrics}")
@@ -518,6 +526,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         episode_dir=None if args.no_save_episodes else out / "episodes", verbose=not args.quiet, executor=executor,
     )  # fmt: skip
     wall = time.perf_counter() - started
+    layouts = list(dict.fromkeys(str(row["layout"]) for row in rows))  # the task's own when none was given
     config = {
         "argv": list(sys.argv[1:] if argv is None else argv),
         "policies": policies, "layouts": layouts, "seeds": seeds, "steps": args.steps,
@@ -526,7 +535,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         "executor": executor.describe(),
     }  # fmt: skip
     paths = write_outputs(rows, series, out, config)
-    print(f"{args.env}: policies {args.policies}; layouts {','.join(layouts)}; seeds {seeds[0]}..{seeds[-1]}; "
+    print(f"{args.env}: agents {','.join(policies)}; layouts {','.join(layouts)}; seeds {seeds[0]}..{seeds[-1]}; "
           f"{args.steps} steps\n")  # fmt: skip
     print(summary_tables(rows, series))
     if args.paired_against is not None:

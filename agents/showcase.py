@@ -1,22 +1,22 @@
-"""The main job: the shipped policy against the baselines, and a GIF of it.
+"""The main job: a shipped policy against the baselines, and a GIF of it.
 
 Usage::
 
-    python -m agents.showcase [--episodes 100] [--seed 1000000] [--env SeifExplore-v2] [--out showcase]
-        [--bootstrap N] [--quiet]
+    python -m agents.showcase [--policy ppo] [--env SeifExplore-v2] [--episodes N] [--seed 1000000]
+        [--out showcase] [--bootstrap N] [--quiet]
 
 Runs :func:`agents.evaluate.evaluate_agents` for ``random``, ``frontier``,
-``revisit``, ``info_gain`` and the shipped PPO policy (:data:`SHIPPED_POLICY`,
-trained on ``SeifExplore-v0``) on the same held-out seeds of ``--env``
-(default ``SeifExplore-v2``, the newest version, where the README's first
-table was measured; its tables on ``-v1`` and ``-v0`` are the same command
-with ``--env``; training never resets with these seeds), prints the table
-(means with 95% confidence intervals) and the paired comparison with the best
-baseline (the mean per-seed difference of the final map error with its 95%
-Student-t interval, :func:`agents.evaluate.paired_comparison`; the policy
-*beats* the best baseline only when that interval lies below zero), writes
+``revisit``, ``info_gain`` and ``--policy`` (a shipped policy's name, default
+``ppo``, or the path of a saved model) on the same held-out seeds of
+``--env`` (default the newest task, :data:`seif_gym.LATEST_ID`; training never
+resets with these seeds; ``--episodes`` default: the protocol's,
+:func:`agents.protocol.held_out_episodes`), prints the table (means with 95%
+confidence intervals) and the paired comparison with the best baseline (the
+mean per-seed difference of the final map error with its 95% Student-t
+interval, :func:`agents.evaluate.paired_comparison`; the policy *beats* the
+best baseline only when that interval lies below zero), writes
 ``results.csv``, ``summary.json``, ``summary.md`` and ``map_error.png`` to
-``--out``, and records one episode of the shipped policy as ``episode.gif``.
+``--out``, and records one episode of the policy as ``episode.gif``.
 Progress goes to stderr (``--quiet``: none).
 """
 
@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import argparse
 import time
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -32,16 +32,21 @@ import gymnasium as gym
 import numpy as np
 
 import seif_gym  # noqa: F401  (registers the envs)
-from agents import BASELINES
+from agents.baselines import BASELINES
+from agents.cli import task, tasks_epilog
 from agents.evaluate import evaluate_agents, markdown_table, paired_table, write_outputs
 from agents.loading import SHIPPED_POLICIES
 from agents.protocol import HELD_OUT_SEED, held_out_episodes
 from agents.sb3_agent import SB3Agent
+from seif_gym import LATEST_ID
 from seif_gym.progress import Progress
 
+__all__ = ["ENV_ID", "SHIPPED_POLICY", "main", "record_gif", "verdict_sentence"]
+
+#: The ``.zip`` of the policy shown by default, the shipped policy ``ppo``.
 SHIPPED_POLICY = SHIPPED_POLICIES["ppo"].path
-#: The env the main job evaluates on: the newest version (the shipped policy was trained on ``SeifExplore-v0``).
-ENV_ID = "SeifExplore-v2"
+#: The task the main job evaluates on by default: the newest.
+ENV_ID = LATEST_ID
 
 
 def record_gif(policy_path: Path, path: Path, seed: int, every: int = 4, size: int = 400, env_id: str = ENV_ID,
@@ -97,14 +102,25 @@ def verdict_sentence(summary: Mapping[str, Any], label: str) -> str:
             f"paired per-seed difference of the final map error {entry['mean']:+.3f} m, {interval}.")  # fmt: skip
 
 
-def main(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+def main(argv: Sequence[str] | None = None) -> None:
+    """Run ``python -m agents.showcase`` with ``argv`` (default ``sys.argv[1:]``).
+
+    A bad argument exits through ``argparse`` (status 2) before any episode runs.
+    """
+    parser = argparse.ArgumentParser(
+        prog="python -m agents.showcase",
+        description=__doc__,
+        epilog=f"shipped policies (--policy): {', '.join(SHIPPED_POLICIES)}\n\n{tasks_epilog()}",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
     parser.add_argument("--episodes", type=int, default=None,
                         help="held-out episodes per agent (default: the protocol's for --env)")  # fmt: skip
-    parser.add_argument("--seed", type=int, default=HELD_OUT_SEED)
-    parser.add_argument("--policy", default=str(SHIPPED_POLICY), help="SB3 .zip of the policy to show")
-    parser.add_argument("--env", default=ENV_ID, help="registered env id (default %(default)s)")
-    parser.add_argument("--out", default="showcase")
+    parser.add_argument("--seed", type=int, default=HELD_OUT_SEED, help="first held-out seed (default %(default)s)")
+    parser.add_argument("--policy", default="ppo",
+                        help="the policy to show: a shipped policy's name or the path of a saved model (default %(default)s)")  # fmt: skip
+    parser.add_argument("--env", type=task, default=ENV_ID, metavar="TASK",
+                        help="registered env id or family (default %(default)s)")  # fmt: skip
+    parser.add_argument("--out", default="showcase", help="output folder (default %(default)s)")
     parser.add_argument("--bootstrap", type=int, default=0, metavar="N",
                         help="also a percentile bootstrap interval of the paired differences, N resamples")  # fmt: skip
     parser.add_argument("--quiet", action="store_true", help="no progress on stderr")
@@ -118,12 +134,15 @@ def main(argv: list[str] | None = None) -> None:
         parser.error(f"--episodes must be positive, got {args.episodes}")
     if args.bootstrap < 0:
         parser.error(f"--bootstrap must be >= 0, got {args.bootstrap}")
-    if not Path(args.policy).is_file():
-        parser.error(f"--policy: no model at {args.policy}")
+    policy = SHIPPED_POLICIES[args.policy].path if args.policy in SHIPPED_POLICIES else Path(args.policy)
+    if not policy.is_file():
+        parser.error(f"--policy: {args.policy!r} is neither a shipped policy ({', '.join(SHIPPED_POLICIES)}) "
+                     "nor the path of a saved model")  # fmt: skip
 
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    specs = [*BASELINES, args.policy]
+    label = args.policy if args.policy in SHIPPED_POLICIES else None
+    specs = [*BASELINES, str(policy) if label is None else f"{label}={policy}"]
     started = time.perf_counter()
     rows, summary = evaluate_agents(specs, episodes=args.episodes, seed=args.seed, env_id=args.env, env_kwargs={},
                                     verbose=not args.quiet, bootstrap=args.bootstrap)  # fmt: skip
@@ -135,7 +154,7 @@ def main(argv: list[str] | None = None) -> None:
     if paired:
         print(f"\n{paired}")
     print(f"\n{verdict_sentence(summary, list(summary['agents'])[-1])}")
-    gif = record_gif(Path(args.policy), out / "episode.gif", seed=args.seed, env_id=args.env, verbose=not args.quiet)
+    gif = record_gif(policy, out / "episode.gif", seed=args.seed, env_id=args.env, verbose=not args.quiet)
     print(f"\nwrote {', '.join(str(out / name) for name in ('results.csv', 'summary.json', 'summary.md', 'map_error.png'))} "
           f"and {gif}")  # fmt: skip
 

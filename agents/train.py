@@ -83,7 +83,7 @@ import yaml
 
 import seif_gym  # noqa: F401  (registers the envs)
 from agents.allocator import keep_freed_memory
-from agents.cli import json_object
+from agents.cli import json_object, resolve_task, tasks_epilog
 from agents.hyperparams import HYPERPARAMS_DIR
 from seif_gym import LATEST_ID
 
@@ -131,10 +131,25 @@ def _positive_or_off(text: str) -> int:
     return value
 
 
+def _task(text: str) -> str:
+    """``--env`` / ``--mix-env``: a family becomes its newest env id; anything else is checked by :func:`prepare`."""
+    try:
+        return resolve_task(text)
+    except ValueError:  # gym's "module:EnvId", or an unknown id that prepare refuses with its option's name
+        return text
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    """The parser of ``python -m agents.train``."""
+    parser = argparse.ArgumentParser(
+        prog="python -m agents.train",
+        description=__doc__,
+        epilog=tasks_epilog(),
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
     parser.add_argument("--algo", choices=ALGOS, default="ppo")
-    parser.add_argument("--env", default=LATEST_ID, help="a registered env id (default %(default)s)")
+    parser.add_argument("--env", type=_task, default=LATEST_ID, metavar="TASK",
+                        help="a registered env id or family (default %(default)s)")  # fmt: skip
     parser.add_argument(
         "--conf-file",
         default=None,
@@ -163,6 +178,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument(
         "--mix-env",
         action="append",
+        type=_task,
         default=[],
         metavar="ID",
         help="another registered env id for a share of the training envs (repeatable): ranks cycle through "

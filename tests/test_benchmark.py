@@ -11,6 +11,7 @@ import pytest
 
 import seif_gym
 from agents import benchmark, loading, protocol
+from agents.cli import resolve_tasks
 
 
 def test_default_variants_are_every_layout_of_a_version():
@@ -20,10 +21,10 @@ def test_default_variants_are_every_layout_of_a_version():
     assert all(i.endswith("-v0") for i in benchmark.default_variants(0))
     with pytest.raises(ValueError, match="version"):
         benchmark.default_variants(99)
-    assert benchmark._resolve_variants(["SeifExploreLoop", "SeifExplore-v0"], None) == [
+    assert resolve_tasks(["SeifExploreLoop", "SeifExplore-v0"], None) == [
         f"SeifExploreLoop-v{seif_gym.LATEST_VERSION}", "SeifExplore-v0"]  # fmt: skip
-    with pytest.raises(ValueError, match="variants"):
-        benchmark._resolve_variants(["NoSuchLayout"], None)
+    with pytest.raises(ValueError, match="unknown env 'NoSuchLayout'"):
+        resolve_tasks(["NoSuchLayout"], None)
 
 
 def test_shipped_policy_fits_the_default_variant():
@@ -191,7 +192,7 @@ def test_run_benchmark_with_episodes_on_local_processes_equals_the_serial_run(tm
 
 def test_benchmark_command_refuses_jobs_with_workers(tmp_path, capsys):
     with pytest.raises(SystemExit):
-        benchmark.main(["--variants", "SeifExplore-v1", "--jobs", "2", "--workers", "2", "--out", str(tmp_path / "b")])
+        benchmark.main(["--tasks", "SeifExplore-v1", "--jobs", "2", "--workers", "2", "--out", str(tmp_path / "b")])
     assert "exclude each other" in capsys.readouterr().err
     assert not (tmp_path / "b").exists()
 

@@ -319,7 +319,7 @@ def test_evaluate_agents_on_two_nodes_equals_serial(cluster):
 
 def test_robustness_command_with_ray_address(cluster, tmp_path):
     """``--ray ADDRESS`` from another process: it joins the cluster as a driver and leaves it running."""
-    command = [sys.executable, "-m", "agents.robustness", "--policies", "frontier", "--seeds", "2", "--steps", "8"]
+    command = [sys.executable, "-m", "agents.robustness", "--agents", "frontier", "--episodes", "2", "--steps", "8"]
     command += ["--filters", "seif-k4", "--env", "SeifExplore-v1", "--out", str(tmp_path), "--quiet"]
     done = subprocess.run([*command, "--ray", cluster.address], capture_output=True, text=True, timeout=300)
     assert done.returncode == 0, done.stderr[-3000:]

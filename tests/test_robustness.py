@@ -23,7 +23,7 @@ STEPS = 20
 @pytest.fixture(scope="module")
 def harness_run(tmp_path_factory):
     out = tmp_path_factory.mktemp("robustness")
-    argv = ["--policies", "random", "--layouts", "uniform", "--seeds", "1", "--seed", "3", "--steps", str(STEPS),
+    argv = ["--agents", "random", "--layouts", "uniform", "--episodes", "1", "--seed", "3", "--steps", str(STEPS),
             "--filters", "seif-k2,seif-k8,ekf", "--out", str(out)]  # fmt: skip
     assert main([*argv, "--quiet"]) == 0
     return out
@@ -226,7 +226,7 @@ def test_paired_policies_pairs_by_layout_and_seed():
 
 def test_paired_against_writes_paired_tables(tmp_path, capsys):
     out = tmp_path / "run"
-    argv = ["--policies", "random,still=frontier", "--layouts", "uniform", "--seeds", "2", "--steps", "8",
+    argv = ["--agents", "random,still=frontier", "--layouts", "uniform", "--episodes", "2", "--steps", "8",
             "--filters", "seif-k8,ekf", "--out", str(out), "--quiet", "--no-save-episodes",
             "--paired-against", "random", "--paired-metrics", "anees_pose,final_map_error",
             "--paired-relative-to", "ekf"]  # fmt: skip

@@ -1,4 +1,4 @@
-"""The command line of an evaluation: ``python -m agents.evaluate``."""
+"""The command line of an evaluation: ``python -m agents.evaluate`` (:func:`main`)."""
 
 from __future__ import annotations
 
@@ -6,8 +6,7 @@ import argparse
 import time
 from collections.abc import Sequence
 
-from agents.baselines import BASELINES
-from agents.cli import json_object
+from agents.cli import agents_help, json_object, task, tasks_epilog
 from agents.evaluate.report import load_stored_run, markdown_table, paired_table, write_outputs
 from agents.evaluate.rollout import evaluate_agents
 from agents.loading import agent_labels, check_agent_spec
@@ -22,15 +21,14 @@ def _parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="python -m agents.evaluate",
         description="Run agents on the same seeds of a SeifExplore env and compare them.",
+        epilog=f"{agents_help()}\n\n{tasks_epilog()}\n\nThe output files: python -c 'import agents.evaluate as e; help(e)'.",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    parser.add_argument(
-        "--agents",
-        required=True,
-        help=f"comma-separated baseline names ({', '.join(BASELINES)}) and/or paths of SB3 .zip models",
-    )
-    parser.add_argument("--episodes", type=int, default=10, help="episodes per agent (default 10)")
-    parser.add_argument("--seed", type=int, default=0, help="seed of the first episode (default 0)")
-    parser.add_argument("--env", default=LATEST_ID, help="registered env id (default %(default)s)")
+    parser.add_argument("--agents", required=True, help="comma-separated agents (see below)")
+    parser.add_argument("--episodes", type=int, default=10, help="episodes per agent (default %(default)s)")
+    parser.add_argument("--seed", type=int, default=0, help="seed of the first episode (default %(default)s)")
+    parser.add_argument("--env", type=task, default=LATEST_ID, metavar="TASK",
+                        help="registered env id or family (default %(default)s)")  # fmt: skip
     parser.add_argument(
         "--env-kwargs", type=json_object, default="{}", help="JSON object of gym.make keyword arguments"
     )
@@ -50,7 +48,13 @@ def _parser() -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Command-line entry point; returns the exit status."""
+    """Run ``python -m agents.evaluate`` with ``argv`` (default ``sys.argv[1:]``).
+
+    Returns
+    -------
+    int
+        The exit status, 0; a bad argument exits through ``argparse`` (status 2) before any episode runs.
+    """
     parser = _parser()
     args = parser.parse_args(argv)
     specs = [spec.strip() for spec in args.agents.split(",") if spec.strip()]

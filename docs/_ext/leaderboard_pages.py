@@ -97,7 +97,7 @@ def page(data: dict[str, Any], intro: str | None, docs: Path, page_dir: Path, af
         f"Run with seif_gym {version}. Held-out seeds, the same for every agent of a task; the final map error "
         "is the mean over the episodes with its 95% Student-t interval; the difference is the paired per-seed "
         "difference of the final map error to the best baseline, with its 95% Student-t interval. An agent "
-        "beats the best baseline when that interval lies below zero ({doc}`protocol`). `python -m "
+        "beats the best baseline when that interval lies below zero (the {doc}`protocol <protocol>`). `python -m "
         "agents.benchmark` writes the same tables, and each task's map error over time "
         "(`<task>/map_error.png` in its output folder).",
         "",
@@ -106,7 +106,16 @@ def page(data: dict[str, Any], intro: str | None, docs: Path, page_dir: Path, af
         task_rows = sorted((r for r in rows if r["env_id"] == env_id), key=lambda r: r["final_map_error"])
         episodes = per_task(data.get("episodes"), env_id) or (task_rows[0].get("episodes") if task_rows else None)
         seeds = per_task(data.get("seeds"), env_id)
-        out += [f"## {env_id}", "", seeds_line(seeds, episodes), "", table(task_rows), ""]
+        out += [
+            f"## {env_id}",
+            "",
+            seeds_line(seeds, episodes),
+            "",
+            "```{container} leaderboard",
+            table(task_rows),
+            "```",
+            "",
+        ]
         verdict = verdict_line(task_rows)
         if verdict:
             out += [verdict, ""]

@@ -148,15 +148,13 @@ def changelog_bullets(root: Path) -> list[str] | None:
 
 def bullets_for(family: Family, bullets: Iterable[str]) -> list[str]:
     """The changelog's bullets of a family: ``- **Name-vN**`` ones for it, ``- **-vN**`` ones for the others."""
+    # the family's name followed by -v exactly: SeifExplore's own bullets are not SeifExploreMRCLAM's
     own = re.compile(rf"^- \*\*{re.escape(family.name)}-v\d+\*\*")
-    named = re.compile(r"^- \*\*[A-Za-z]\w*-v\d+\*\*")
     shared = re.compile(r"^- \*\*-v\d+\*\*")
     mine = [b for b in bullets if own.match(b)]
-    if mine:
+    if mine or family.name.endswith("MRCLAM"):
         return mine
-    if any(named.match(b) and b.startswith(f"- **{family.name}") for b in bullets):
-        return []
-    return [b for b in bullets if shared.match(b)] if not family.name.endswith("MRCLAM") else []
+    return [b for b in bullets if shared.match(b)]
 
 
 def rewrite_links(markdown: str, root: Path, page_dir: Path) -> str:

@@ -288,8 +288,9 @@ class SeifExploreEnv(gym.Env):
 
     ## Episode End
 
-    * Truncation: the time limit of the registration (`max_episode_steps`,
-      400 for `SeifExplore-v0`).
+    * Truncation: the time limit of the registration (`max_episode_steps`):
+      each registered id sets its own, given in the registry and on that
+      task's page.
     * Termination: the estimate diverged, i.e. the estimated position is
       more than `divergence_threshold` metres from the true one;
       `info["diverged"]` is then `True`.
@@ -346,7 +347,7 @@ class SeifExploreEnv(gym.Env):
     | `max_speed`, `max_turn_rate` | 1.0, 1.0 | action scaling, m/s and rad/s |
     | `filter` | `"seif"` | any of `seif_gym.slam.FILTERS` |
     | `max_active` | 8 | SEIF's active-landmark bound `k` (ignored by the exact filters) |
-    | `ml_association` | `"individual"` | with `data_association="ml"`: the associator preset (`seif_gym.slam.association.ASSOCIATOR_PRESETS`): `"individual"` (individual compatibility, as in 0.1; every version) or `"joint"` (joint compatibility with deferred lone loop closures: fewer false closures for the EKF; slower, and it discards lone revisits) or `"revisable"` (joint, with duplicates merged back and deferred lone closures kept as tentative landmarks: `docs/fidelity.md`) or `"likelihood"` (revisable, with joint hypotheses ranked by likelihood: the most faithful on loop closures, `docs/fidelity.md`) |
+    | `ml_association` | `"individual"` | with `data_association="ml"`: the associator preset (`seif_gym.slam.association.ASSOCIATOR_PRESETS`): `"individual"` (individual compatibility, as in 0.1; every version) or `"joint"` (joint compatibility with deferred lone loop closures: fewer false closures for the EKF; slower, and it discards lone revisits) or `"revisable"` (joint, with duplicates merged back and deferred lone closures kept as tentative landmarks: `docs/filters/fidelity.md`) or `"likelihood"` (revisable, with joint hypotheses ranked by likelihood: the most faithful on loop closures, `docs/filters/fidelity.md`) |
     | `innovation_gate` | `None` | every filter's gate: a measurement of a mapped landmark whose squared Mahalanobis distance exceeds it is left out of the update (13.8 = χ²₂ 99.9 %; real data's outliers) |
     | `mean_recovery` | `"wavefront"` | SEIF/ESEIF mean recovery: `"wavefront"` (`-v1`), Thrun's round-robin `"amortized"` (`-v0`), or `"exact"` (a sparse solve every step) |
     | `data_association` | `"known"` | `"known"`: the filter gets the true landmark ids; `"ml"`: maximum-likelihood association (`seif_gym.slam.Associator`: χ² gate, new-landmark threshold, mutual exclusion; SEIF covariances from the Markov blanket), so that agents and filters face association errors |

@@ -33,8 +33,8 @@ errors make it overconfident.
 
 ## Version History
 
-* v0 (seif_gym 0.3): first version, with the filter settings of the
-  versioned variants' latest version (`-v1`: the wavefront mean recovery).
+Every version of `SeifExploreMRCLAM`, and what changed in each, is listed in
+`CHANGELOG.md`, section "Environment versions".
 """
 
 from __future__ import annotations

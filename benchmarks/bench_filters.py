@@ -33,7 +33,7 @@ corridor without loop closure the heading error, and with it the whole map's
 rotation, slowly drifts, so absolute errors far from the robot grow with the
 corridor's length for every filter, EKF included; the local map is what a
 working filter keeps accurate, and the script checks it is under 10 cm. The
-SEIF's 1-sigma is known to be overconfident, ``SEIF.md`` section 3.) Every
+SEIF's 1-sigma is known to be overconfident: docs/filters/math.md, "Sparsification".) Every
 filter gets exactly the same controls and measurements for a given n.
 
 Phases of one (filter, n) run

@@ -20,7 +20,7 @@ all its noise, and every filter gets exactly the same controls and
 measurements of that run.
 
 Filters: EKF SLAM (the exact reference); SEIF without sparsification and with
-exact mean recovery (equal to the EKF to round-off, ``SEIF.md``); SEIFs with
+exact mean recovery (equal to the EKF to round-off, docs/filters/math.md); SEIFs with
 ``max_active`` 8, 4 and 2 and amortized mean recovery (the default SEIF); and
 SEIF(4) and SEIF(8) with exact mean recovery, which separate the effect of
 sparsification from that of amortized recovery.

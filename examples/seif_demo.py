@@ -19,7 +19,7 @@ and one figure is saved (``--out``):
 2. **SEIF vs EKF uncertainty, zoomed on the end of the run** (where the loop
    closed): the 95% ellipses of both filters for the same landmarks, and of
    the final pose (x, y). Sparsification approximates: the SEIF ellipses can
-   be smaller than the EKF's (overconfidence, see ``SEIF.md``, section 3).
+   be smaller than the EKF's (overconfidence, see docs/filters/math.md, "Sparsification").
 3. **Sparsity of the SEIF information matrix** Omega (state order: robot,
    then landmarks in the order first seen, i.e. around the loop). The robot
    rows and columns are shaded: their few entries are the active links. The

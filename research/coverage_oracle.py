@@ -14,7 +14,7 @@ its final map error is a bound on what exploring for coverage can give, not on
 what a policy can reach: where a learned policy beats it, it does so by
 accuracy (closing loops, revisiting), where it trails it by far, a better
 explorer could exist. It is a diagnostic for the benchmark's tasks
-(docs/benchmark.md, "Tasks"), never an agent of the leaderboard.
+(docs/benchmark/protocol.md, "Tasks"), never an agent of the leaderboard.
 
 Prints, per task, the oracle's mean final map error with its 95% Student-t
 interval and the landmarks it mapped, on the validation seeds by default.

@@ -8,8 +8,8 @@ teacher: here the policy network is first fitted to the teacher's actions
 (behaviour cloning), on the teacher's own episodes and then, DAgger-style
 (Ross et al., AISTATS 2011), on episodes the learner drives while the
 teacher labels every state it visits, so that the clone learns to recover
-from its own mistakes. PPO then trains from there (``agents.train
---kickstart``).
+from its own mistakes. PPO then trains from there (``python -m
+research.kickstart``).
 
 What is fitted, on the observations exactly as the training envs give them
 (the config's ``env_wrapper`` applied):

@@ -9,8 +9,8 @@ mapped. It plans no revisits and no loop closures.
 Two uses, neither of them as a leaderboard agent:
 
 * a yardstick of how much room a task leaves to coverage
-  (``research/coverage_oracle.py``, docs/benchmark.md "Tasks");
-* a *privileged teacher* for kickstarting (``agents.train --kickstart
+  (``research/coverage_oracle.py``, docs/benchmark/protocol.md "Tasks");
+* a *privileged teacher* for kickstarting (``python -m research.kickstart --kickstart
   coverage_oracle``): its action is a function of the true state alone, so
   it labels any state a learner drives into (DAgger), and the learner, which
   sees only the belief, fits what the oracle does on average given what the

@@ -20,7 +20,7 @@ the runs) is the reference. Printed and written to ``--out`` as
   mean difference over the models and episodes with the interval of
   :func:`agents.evaluate.recipe_difference`, which treats training seeds and
   episodes as crossed random draws. The protocol's rule for a recipe
-  (``docs/benchmark.md``, "What counts as a result") reads this interval.
+  (``docs/benchmark/protocol.md``, "What counts as a result") reads this interval.
 
 Nothing runs here: the episodes are the runs' own.
 """

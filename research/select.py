@@ -4,7 +4,7 @@ Usage::
 
     python -m research.select runs/tll2_s1 runs/tll2_s2 runs/tll2_s3 --env SeifExploreClusteredBudget-v2 --workers 2
 
-The benchmark's protocol (``docs/benchmark.md``) lets a run's checkpoints be
+The benchmark's protocol (``docs/benchmark/protocol.md``) lets a run's checkpoints be
 compared only on the *validation* seeds (500 000 … 500 099); the held-out
 seeds report the chosen one and choose nothing. This command does that step:
 for every run folder it scores every candidate (each checkpoint
@@ -24,13 +24,13 @@ chosen from what, on which seeds, with the figures); and to ``--out``:
 :func:`agents.evaluate.write_outputs` of the whole evaluation and
 ``selection.md``, one table per run with each candidate's mean and paired
 difference to the best baseline. The callback's own choice rests on its 10 to
-30 episodes; on 100 it is often not the best (``docs/benchmark.md``).
+30 episodes; on 100 it is often not the best (``docs/benchmark/protocol.md``).
 
 ``--best-of-runs DIR`` also keeps one model for the runs together: the run
 whose chosen candidate has the lowest validation mean (ties go to the run
 given first), copied to ``DIR/selected/`` as above, its ``selection.json``
 naming the runs it was chosen from. A recipe that trains several runs per
-training seed and keeps the best on validation (``docs/experiments.md``,
+training seed and keeps the best on validation (``docs/research/experiments.md``,
 "best of two runs") is this one call per training seed::
 
     python -m research.select runs/r2_31_a runs/r2_31_b --env SeifExploreClusteredBudget-v2 --best-of-runs runs/r2_31

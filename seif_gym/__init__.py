@@ -29,12 +29,12 @@ _LAYOUTS: dict[str, tuple[dict, int]] = {
     "SeifExploreClustered": ({"layout": "clustered"}, 400),
     "SeifExploreLarge": ({"arena_size": 40.0, "num_landmarks": 120}, 1000),
     # The loop under a step budget (seif_gym 0.3): at 400 steps every explorer closes the ring and the
-    # baselines tie; at 150 they separate (docs/benchmark.md, "Tasks"). Registered in every version,
+    # baselines tie; at 150 they separate (docs/benchmark/protocol.md, "Tasks"). Registered in every version,
     # like the other layouts, so that every version stays a complete family.
     "SeifExploreLoopBudget": ({"layout": "loop", "num_landmarks": 40}, 150),
     # The same fix for the uniform and clustered layouts (seif_gym 0.3), which saturate at 400 steps too:
     # 150 steps separate the uniform layout's baselines, the clusters need 100 (at 150 revisit ties
-    # info_gain). docs/benchmark.md, "Tasks", gives the validation figures behind each budget.
+    # info_gain). docs/benchmark/protocol.md, "Tasks", gives the validation figures behind each budget.
     "SeifExploreBudget": ({}, 150),
     "SeifExploreClusteredBudget": ({"layout": "clustered"}, 100),
 }

@@ -18,7 +18,7 @@ differences of the filters alone. This module replays and scores
 (:func:`score_replay`, :func:`score_episode`, :func:`evaluate_episodes`),
 aggregates (:func:`summary_tables`) and writes the outputs
 (:func:`write_outputs`); the policy-driven recording is
-:mod:`agents.robustness` (``docs/robustness.md`` was measured with it on
+:mod:`agents.robustness` (``docs/filters/robustness.md`` was measured with it on
 ``SeifExplore-v0``). ``seif_gym`` never imports ``agents``.
 
 ``python -m seif_gym.harness --episodes-dir PATH ... [--episodes N]`` scores

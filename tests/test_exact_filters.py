@@ -2,7 +2,7 @@
 
 * On a 300-step loop-closing run the two agree to round-off, and so does the
   SEIF without sparsification and with exact mean recovery
-  (``SEIF.md``, "Exactness that tests can rely on").
+  (docs/filters/math.md, "When the SEIF is exact").
 * The EKF is consistent: its Monte-Carlo average pose NEES lies in the
   two-sided 95% chi-square band, and the same check rejects a covariance that
   is 5 times too small or too large.

@@ -1,6 +1,6 @@
 """Tests of ``seif_gym.slam.models``: velocity motion model, range-bearing sensor, ``wrap_angle``.
 
-Reference: ``SEIF.md``, sections "Velocity motion model" and "Range-bearing sensor".
+Reference: docs/filters/math.md, sections "Motion update" and "Measurement update".
 
 Finite differences are central differences with a fixed step ``H``. Their error
 is bounded by a truncation term (``H**2`` times a third derivative, tiny here)
@@ -53,7 +53,7 @@ def angle_diff(a, b):
 
 
 def book_displacement(theta, v, w, dt):
-    """Thrun Table 5.3 / SEIF.md form, valid for |w| > 0."""
+    """Thrun Table 5.3 / docs/filters/math.md form, valid for |w| > 0."""
     r = v / w
     return np.array(
         [

@@ -226,10 +226,10 @@ def test_compiled_filter_equals_reference_filter(ring_loop_run, max_active, mean
 
 
 # ---------------------------------------------------------------------------
-# sparsification, one step, against the full-matrix equations of SEIF.md
+# sparsification, one step, against the full-matrix equations of docs/filters/math.md
 # ---------------------------------------------------------------------------
 def sparsify_full_matrix(omega, xi, mu, x, m0, m_minus):
-    """SEIF.md section 3 on the whole matrix, Omega^0 with the m- rows and columns zeroed."""
+    """docs/filters/math.md, "Sparsification", on the whole matrix, Omega^0 with the m- rows and columns zeroed."""
     omega0 = omega.copy()
     omega0[m_minus, :] = 0.0
     omega0[:, m_minus] = 0.0
@@ -276,7 +276,7 @@ def test_one_sparsification_step(ring_loop_run, implementation):
     np.testing.assert_array_equal(omega_tilde, omega_tilde.T)
     assert np.linalg.eigvalsh(omega_tilde).min() > 0.0
     np.testing.assert_allclose(np.linalg.solve(omega_tilde, xi_tilde), mu, rtol=1e-9, atol=1e-9)
-    # and it is the full-matrix formula of SEIF.md restricted to the active block
+    # and it is the full-matrix formula of docs/filters/math.md restricted to the active block
     expected_omega, expected_xi = sparsify_full_matrix(omega, xi, mu, x, m0, m_minus)
     scale = np.abs(omega).max()
     np.testing.assert_allclose(omega_tilde, expected_omega, rtol=1e-9, atol=1e-9 * scale)

@@ -40,18 +40,16 @@ HELD_OUT_EPISODES = VALIDATION_EPISODES = 100
 #: Tasks of at most this many steps (the budgets) are *short*: their held-out split is
 #: :data:`SHORT_TASK_HELD_OUT_EPISODES` episodes.
 SHORT_TASK_STEPS = 150
-#: Held-out episodes of a short task. Their paired per-episode differences spread 0.2–0.3 m, so
-#: 100 episodes resolve only leads above about 0.05 m; 400 (at a quarter of a 400-step task's cost
-#: per episode) resolve about 0.03 m (docs/benchmark.md, "Statistics").
+#: Held-out episodes of a short task: more than a long task's, because a short episode's paired
+#: differences are wide relative to the leads they decide (docs/benchmark/protocol.md, "Statistics").
 SHORT_TASK_HELD_OUT_EPISODES = 400
 #: Held-out episodes an experiment may declare on a short task, beyond the leaderboard's
 #: :data:`SHORT_TASK_HELD_OUT_EPISODES`, so that the paired rule can tell leads of 0.02–0.03 m
-#: (docs/benchmark.md, "What the rule can resolve"); the count is fixed before the recipe trains.
+#: (docs/benchmark/protocol.md, "Statistics"); the count is fixed before the recipe trains.
 #: The most any experiment may declare.
 DECLARED_HELD_OUT_EPISODES = 1600
-#: Held-out episodes an experiment may declare on a task longer than :data:`SHORT_TASK_STEPS`
-#: (with the 400-step loop's per-episode spread of paired differences, 0.23 m, the
-#: leaderboard's 100 resolve leads of about 0.045 m; 400 about 0.023 m, at four times the cost).
+#: Held-out episodes an experiment may declare on a task longer than :data:`SHORT_TASK_STEPS`, to
+#: resolve smaller leads than the leaderboard's 100 (docs/benchmark/protocol.md, "Statistics").
 LONG_TASK_DECLARED_HELD_OUT_EPISODES = 400
 #: Every held-out seed of the protocol (the most any task or declared experiment uses): nothing may be chosen on them.
 HELD_OUT_SEEDS = range(

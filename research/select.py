@@ -133,7 +133,7 @@ def _check_seeds(seed: int, episodes: int) -> None:
     if seed < HELD_OUT_SEEDS.stop and seed + episodes > HELD_OUT_SEEDS.start:
         raise ValueError(
             f"seed: {seed}…{seed + episodes - 1} reaches into the held-out seeds {HELD_OUT_SEEDS.start}…"
-            f"{HELD_OUT_SEEDS.stop - 1}, which choose nothing (docs/benchmark.md)"
+            f"{HELD_OUT_SEEDS.stop - 1}, which choose nothing (docs/benchmark/protocol.md)"
         )
 
 

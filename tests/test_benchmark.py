@@ -91,7 +91,7 @@ def test_run_benchmark_writes_the_leaderboard(tmp_path, monkeypatch):
 
 
 def test_a_shipped_policy_goes_by_its_leaderboard_name_in_the_variants_own_files(tmp_path):
-    # the file is ppo_seif_explore.zip; the leaderboard, results.csv and summary.md all call it ppo
+    # the file is ppo.zip; the leaderboard, results.csv and summary.md all call it ppo
     rows = benchmark.run_benchmark(["SeifExplore-v0"], ["frontier", "ppo"], episodes=1, seed=7, out=tmp_path)
     assert [row["agent"] for row in rows] == ["frontier", "ppo"]
     assert rows[1]["kind"] == "policy" and rows[1]["episodes"] == 1

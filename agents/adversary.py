@@ -30,28 +30,16 @@ large ``E^SEIF``, so the adversary is paid for it.
 Extra ``info`` keys: ``ekf_map_error`` (``E_t^EKF``), ``map_error_gap``
 (``G_t``) and, with ``nees_weight > 0``, ``seif_pose_nees``.
 
-Training (the policy still observes only the SEIF's belief; only the reward
-changes). The shipped ``agents/policies/ppo_adversary.zip`` is the 200 k-step
-checkpoint of (``ppo_v1.zip``: the exploring policy shipped until commit 55db0f1, see ``docs/robustness.md``)::
+Training: the policy still observes only the SEIF's belief; only the reward
+changes. The shipped adversary ``ppo_adversary_v1``
+(:data:`agents.loading.SHIPPED_POLICIES`) is the 200 k-step checkpoint of
+this recipe, started from the shipped exploring policy (its use:
+``docs/filters/robustness.md``)::
 
-    python -m agents.train --algo ppo --env SeifExplore-v0 \
-        --init-from ppo_v1.zip \
-        --wrapper agents.adversary:SeifVsEkfReward --wrapper-kwargs '{"nees_weight": 0.01}' \
-        --hyperparams learning_rate=1e-4 --timesteps 250000 --out runs/adversary_nees --seed 5
-
-The adversary of the faithful filter, ``agents/policies/ppo_adversary_v1.zip``,
-is the 200 k-step checkpoint of the same recipe on ``SeifExplore-v1``, started
-from the shipped exploring policy (chosen on the SEIF pose ANEES of 20
-validation episodes; ``docs/robustness.md``, "The adversary against the
-faithful SEIF")::
-
-    python -m agents.train --algo ppo --env SeifExplore-v1 --init-from agents/policies/ppo_seif_explore.zip \
+    python -m agents.train --algo ppo --env SeifExplore-v1 --init-from agents/policies/ppo.zip \
         --wrapper agents.adversary:SeifVsEkfReward --wrapper-kwargs '{"nees_weight": 0.01}' \
         --hyperparams learning_rate=1e-4 --timesteps 400000 --checkpoint-freq 100000 \
         --eval-freq 1000000 --out runs/adversary_v1 --seed 5
-
-From scratch and with the gap alone (``nees_weight = 0``) PPO learned to
-hardly move: the gap is zero for a robot that sees little.
 
 >>> import gymnasium as gym
 >>> import seif_gym
@@ -94,6 +82,13 @@ class SeifVsEkfReward(gym.Wrapper, gym.utils.RecordConstructorArgs):
     reference : str, default "ekf"
         The shadow filter (a name of ``seif_gym.slam.FILTERS``; "eif" gives the
         same estimates).
+
+    Raises
+    ------
+    TypeError
+        If ``env.unwrapped`` is not a ``SeifExploreEnv``.
+    ValueError
+        If ``nees_weight`` is negative or not finite, or ``nees_cap`` is not positive.
     """
 
     def __init__(self, env: gym.Env, nees_weight: float = 0.0, nees_cap: float = 100.0, reference: str = "ekf") -> None:

@@ -2,18 +2,14 @@
 
 Torch's CPU tensors come from the C library's ``malloc``. glibc serves a block
 of 128 KiB or more (a threshold that rises with use, up to 32 MiB) with a fresh
-``mmap`` and unmaps it again on ``free``, and hands the top of its heap back
-to the kernel once more than that lies free there. A PPO update builds and
-drops tensors of tens of MiB (a rollout's observations, each minibatch's
-activations and gradients) over and over, so the kernel maps, zeroes and
-faults in every page of each anew: measured on this project's 2-core machine,
-RecurrentPPO on the loop budget (8 envs, 8,192 steps) spent 20 s of 59 in the
-kernel over 8.3 million page faults. :func:`keep_freed_memory` tells glibc to
+``mmap``, unmaps it again on ``free``, and hands the top of its heap back to
+the kernel once more than that lies free there. A PPO update builds and drops
+tensors of tens of MiB over and over, so without this every page of each is
+mapped, zeroed and faulted in anew. :func:`keep_freed_memory` tells glibc to
 serve every block from its heap (``M_MMAP_MAX = 0``) and to keep what is freed
-there (``M_TRIM_THRESHOLD`` at its maximum): the same run then spent 1.2 s in
-the kernel (0.3 million faults) and took 38 s, with the same weights bit for
-bit (``tests/test_allocator.py``). The price: the process keeps its peak
-heap until it exits (about 1.3 GB there, against 1.25 GB).
+there (``M_TRIM_THRESHOLD`` at its maximum). Results are the same bit for bit
+(``tests/test_allocator.py``); the process keeps its peak heap until it exits.
+What it saves is in ``docs/performance_notes.md``.
 
 ``python -m agents.train`` calls it before building the run
 (``--no-keep-freed-memory`` leaves the allocator alone).

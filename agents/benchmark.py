@@ -9,7 +9,7 @@ Usage::
 A task is a registered env id, or a family (``SeifExploreLoop``) for its
 ``--version`` (default: the family's newest); without ``--tasks``, every
 family at the newest version (:func:`default_variants`). The protocol is in
-``docs/benchmark.md``: each task is run on the same *held-out* seeds
+``docs/benchmark/protocol.md``: each task is run on the same *held-out* seeds
 ``seed … seed + episodes − 1`` (default 1 000 000 … 1 000 099, and
 … 1 000 399 on the short budget tasks,
 :func:`agents.protocol.held_out_episodes`; training and checkpoint selection
@@ -318,7 +318,7 @@ def leaderboard_markdown(rows: Sequence[Mapping[str, Any]], seed: int) -> str:
     lines = [f"# seif_gym {seif_gym.__version__} leaderboard", "",
              f"Held-out seeds from {seed}, the same for every agent of a variant (each variant's count below); "
              "difference: paired per-seed difference of the final map error to the best baseline, "
-             "95% Student-t interval. Protocol: docs/benchmark.md.", ""]  # fmt: skip
+             "95% Student-t interval. Protocol: docs/benchmark/protocol.md.", ""]  # fmt: skip
     for env_id in dict.fromkeys(row["env_id"] for row in rows):
         mine = [row for row in rows if row["env_id"] == env_id]
         ranked = sorted((row for row in mine if row["episodes"]), key=lambda row: row["final_map_error"])
@@ -348,7 +348,7 @@ def _parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="python -m agents.benchmark",
         description="The leaderboard: every baseline and shipped policy on every task of a version.",
-        epilog=f"{agents_help()}\n\n{tasks_epilog('--tasks')}\n\nThe protocol: docs/benchmark.md.",
+        epilog=f"{agents_help()}\n\n{tasks_epilog('--tasks')}\n\nThe protocol: docs/benchmark/protocol.md.",
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     parser.add_argument("--tasks", default="", metavar="TASK,...",

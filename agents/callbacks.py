@@ -209,10 +209,8 @@ class MapErrorEvalCallback(BaseCallback):
         Training steps (all envs together) between evaluations.
     n_episodes : int, default 10
         Validation episodes per evaluation.
-    first_seed : int, default 500000
-        The first validation seed. The project's seeds: training episodes
-        come from the training seed's streams, validation from 500000 on,
-        held-out evaluation (``agents.showcase``) from 1000000 on.
+    first_seed : int, default :data:`agents.protocol.VALIDATION_SEED`
+        The first validation seed (the protocol's splits: :mod:`agents.protocol`).
     save_path : str, optional
         Folder of the outputs; default: the run's folder (:func:`run_folder`;
         ``agents.train`` sets it). Where neither is known (rl-zoo3 with
@@ -226,6 +224,14 @@ class MapErrorEvalCallback(BaseCallback):
     deterministic : bool, default True
     verbose : int, default 1
         1 prints one line per evaluation.
+
+    Raises
+    ------
+    TypeError
+        If a count is not an int, ``save_path`` not a path, ``env_id`` not a string, ``env_kwargs``
+        not a mapping or ``deterministic`` not a bool.
+    ValueError
+        If ``eval_freq`` or ``n_episodes`` is below 1, or ``first_seed`` below 0.
     """
 
     def __init__(
@@ -315,7 +321,18 @@ class MapErrorEvalCallback(BaseCallback):
             self._env = None
 
     def evaluate(self) -> dict[str, float | int]:
-        """Run the validation episodes now; log, write and keep the best. Returns the row written."""
+        """Run the validation episodes now; log, write and keep the best.
+
+        Returns
+        -------
+        dict
+            The row written, keys :data:`EVAL_COLUMNS`.
+
+        Raises
+        ------
+        ValueError
+            If the env to validate on is not known yet (before training starts, without ``env_id``).
+        """
         from agents.evaluate import make_evaluation_env, run_episode  # the evaluation's own env, loop and metrics
 
         self.num_timesteps = int(self.model.num_timesteps)  # also when called outside a step

@@ -9,10 +9,10 @@ model                                       statistics
 ==========================================  ==============================================
 ``DIR/PREFIX_<N>_steps.zip``                ``DIR/PREFIX_vecnormalize_<N>_steps.pkl``
                                             (SB3's ``CheckpointCallback``, as ``agents.train``
-                                            and the runs before it write checkpoints)
+                                            writes checkpoints)
 ``DIR/model.zip`` (any name not a           ``DIR/vecnormalize.pkl`` (:func:`save_with_vecnormalize`:
-checkpoint's)                               the best model of :class:`~agents.callbacks.MapErrorEvalCallback`;
-                                            ``agents.train``'s final model before rl-zoo3)
+checkpoint's)                               the best model of :class:`~agents.callbacks.MapErrorEvalCallback`,
+                                            or any model saved the same way)
 ``RUN/<EnvId>.zip``                         ``RUN/<EnvId>/vecnormalize.pkl`` (rl-zoo3's final model)
 ==========================================  ==============================================
 
@@ -105,6 +105,13 @@ def save_with_vecnormalize(model: Any, model_path: str | os.PathLike) -> tuple[P
     model_path : Path
     stats_path : Path or None
         ``None`` when the model trains without ``VecNormalize``.
+
+    Raises
+    ------
+    TypeError
+        If ``model_path`` is not a path or ``model`` is not an SB3 model.
+    ValueError
+        If ``model_path`` does not end in ``.zip``.
     """
     path = _as_path(model_path)
     if not callable(getattr(model, "save", None)) or not callable(getattr(model, "get_vec_normalize_env", None)):
@@ -126,6 +133,13 @@ def load_vecnormalize_stats(stats_path: str | os.PathLike) -> Any:
 
     ``VecNormalize.load`` needs a venv to wrap; copying the running statistics into an
     existing ``VecNormalize`` (``--init-from``) needs only the object.
+
+    Raises
+    ------
+    TypeError
+        If ``stats_path`` is not a path.
+    FileNotFoundError
+        If it does not exist.
     """
     if not isinstance(stats_path, (str, os.PathLike)):
         raise TypeError(f"stats_path must be a path, got {type(stats_path).__name__}")

@@ -37,7 +37,21 @@ def belief_map_encoder(
 
     Shared by the SB3 extractor (:class:`BeliefExtractor`) and the RLlib module
     (``agents.rllib_agent``), so that both read the map with one architecture.
-    Built in this order (CNN, then head), so seeded initialisations stay as they were.
+    The CNN is built before the head, so one seed gives both users the same initial weights.
+
+    Parameters
+    ----------
+    channels, height, width : int
+        The shape of the belief map.
+    map_features : int
+        Width of the embedding.
+
+    Returns
+    -------
+    cnn : torch.nn.Sequential
+        ``(batch, channels, height, width)`` -> ``(batch, flat)``.
+    head : torch.nn.Sequential
+        ``(batch, flat)`` -> ``(batch, map_features)`` (linear, then ReLU).
     """
     cnn = nn.Sequential(
         nn.Conv2d(channels, 16, kernel_size=4, stride=2, padding=1),
@@ -58,7 +72,7 @@ class BeliefExtractor(BaseFeaturesExtractor):
 
     The belief map is an egocentric raster (``C x H x W``; ``uint8`` in the
     env, which SB3's preprocessing, ``normalize_images=True``, hands over as
-    floats in [0, 1]); two strided convolutions keep its geometry (where the unswept area and
+    floats in [0, 1]); three strided convolutions keep its geometry (where the unswept area and
     the walls are relative to the heading), which a flattening MLP would
     have to learn from scratch. ``pose``, ``landmarks`` and
     ``landmarks_mask`` are flattened and concatenated.
@@ -69,6 +83,11 @@ class BeliefExtractor(BaseFeaturesExtractor):
         The env's observation space.
     map_features : int
         Width of the belief-map embedding.
+
+    Raises
+    ------
+    ValueError
+        If ``belief_map`` is not ``C x H x W``.
     """
 
     def __init__(self, observation_space: gym.spaces.Dict, map_features: int = 128) -> None:
@@ -120,8 +139,7 @@ def fused_lstm_sequence(
     ``(n_seq * length,)`` with 1.0 where an episode begins. Where an episode
     begins inside a sequence the reference steps the LSTM one time step at a
     time in Python to zero the states there, which during a gradient update is
-    nearly every minibatch (any sequence that starts an episode) and costs
-    about 80% of RecurrentPPO's training time on these tasks.
+    nearly every minibatch (any sequence that starts an episode).
 
     Its rollout buffer cuts a sequence at every episode start, so an episode
     can begin only at a sequence's first step: the reset is then folded into
@@ -144,10 +162,10 @@ def fused_lstm_sequence(
 
     Notes
     -----
-    The outputs and final states equal the reference's (bit for bit on the
-    machines measured: the same gate arithmetic per step; the input products
-    of all steps are one matrix product instead of one per step, which a BLAS
-    may round differently). One-step sequences, as when acting, run the very
+    The outputs and final states equal the reference's: the same gate
+    arithmetic per step, but the input products of all steps are one matrix
+    product instead of one per step, which a BLAS may round differently
+    (``tests/test_networks.py`` checks them equal). One-step sequences, as when acting, run the very
     operations of the reference, so actions are equal bit for bit. The
     gradients of the LSTM's weights equal the reference's to float32 round-off
     only, since the fused backward sums the steps' contributions in another
@@ -188,12 +206,16 @@ class BeliefRecurrentPolicy(RecurrentMultiInputActorCriticPolicy):
     fused_lstm : bool, default False
         Run each sequence of a gradient update through the LSTM in one call
         (:func:`fused_lstm_sequence`) instead of sb3-contrib's step-by-step
-        loop: RecurrentPPO trains about twice as fast on these tasks
-        (``benchmarks/bench_recurrent.py``).
-        Actions are the same bit for bit either way; training differs in
-        round-off, so the recipes trained before it existed (which did not
-        set it) keep the loop and reproduce as they were. Given in
-        ``policy_kwargs`` and saved with the model.
+        loop. Actions are the same bit for bit either way; training differs
+        in round-off, so a recipe reproduces only with the setting it was
+        trained with (``False`` for those that do not name it). Given in
+        ``policy_kwargs`` and saved with the model. Its speed-up:
+        ``docs/performance_notes.md``.
+
+    Raises
+    ------
+    TypeError
+        If ``fused_lstm`` is not a bool.
     """
 
     def __init__(self, *args: Any, fused_lstm: bool = False, **kwargs: Any) -> None:

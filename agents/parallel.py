@@ -11,7 +11,7 @@ agent is built inside the task). :meth:`Executor.map` runs them
   inherited from the parent, as on a cluster);
 - ``Executor(ray="auto")`` or ``Executor(ray="HOST:PORT")``: as Ray tasks of one
   CPU each on a running cluster (``ray start --head`` on one machine,
-  ``ray start --address HOST:PORT`` on the others, see ``docs/ray.md``); an
+  ``ray start --address HOST:PORT`` on the others, see ``docs/training/ray.md``); an
   already initialised Ray connection (``ray.init``) is used as it is.
 
 and returns the results in task order whatever order they finish in, calling
@@ -54,7 +54,7 @@ def _worker_setup(parent: int) -> None:
     N workers on N cores each running a multi-threaded BLAS would fight over
     the cores; a task's results do not depend on the thread count (as Ray
     gives its tasks one thread). A worker runs a task to its end, and a task
-    can be a whole variant of the leaderboard: killed while one runs, the
+    can be a whole task of the leaderboard: killed while one runs, the
     parent would leave its workers computing for nobody, so a watcher thread
     ends the worker when its parent process is gone.
     """
@@ -97,6 +97,11 @@ class Executor:
     placements : list of str
         Where each task of the last :meth:`map` ran, in task order: the Ray
         node id, or ``host:pid`` for this process and local workers.
+
+    Raises
+    ------
+    ValueError
+        If ``workers`` is not a positive int, or ``ray`` is not a non-empty string.
 
     Examples
     --------
@@ -254,6 +259,18 @@ def chunks(items: Sequence[Any], slots: int, *, together: bool = False) -> list[
     each of at least one item; one run when ``slots == 1`` (a serial harness
     builds its agent once) or ``together`` (an agent whose state carries from
     one episode into the next must see all of them, in order).
+
+    Returns
+    -------
+    list of list
+        The runs, in order; their concatenation is ``list(items)`` (no run for no items).
+
+    Examples
+    --------
+    >>> chunks(range(5), 2)
+    [[0, 1], [2, 3], [4]]
+    >>> chunks(range(5), 2, together=True)
+    [[0, 1, 2, 3, 4]]
     """
     items = list(items)
     if not items:
@@ -275,7 +292,7 @@ def add_arguments(parser: Any) -> None:
         default=None,
         metavar="auto|ADDRESS",
         help="run the episodes as Ray tasks on a cluster: 'auto' (the one this machine belongs to) or HOST:PORT "
-        "(needs the ray extra; see docs/ray.md)",
+        "(needs the ray extra; see docs/training/ray.md)",
     )
 
 

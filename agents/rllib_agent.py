@@ -2,7 +2,7 @@
 
 Needs the optional ``ray`` extra (``pip install -e ".[ray]"``); nothing in
 ``seif_gym`` or in the rest of ``agents`` imports this module unless asked to
-(``make_agent("rllib:PATH")`` imports it on demand).
+(:func:`agents.loading.load_agent` imports it for ``rllib:CHECKPOINT``).
 
 :class:`BeliefRLModule` is a ``TorchRLModule`` for RLlib's new API stack that
 reads the ``Dict`` observation as what it is, like the project's SB3 policy

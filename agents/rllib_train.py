@@ -18,7 +18,7 @@ env (``gym.make_vec(id, vectorization_mode="vector_entry_point")``,
 Without ``--address`` a local Ray instance is started for the run and
 stopped after it; every Ray process of it binds to 127.0.0.1. With
 ``--address auto`` (or ``HOST:PORT``) the run joins a running cluster (see
-``docs/ray.md``: ``ray start --head`` on one machine, ``ray start
+``docs/training/ray.md``: ``ray start --head`` on one machine, ``ray start
 --address=HEAD:6379`` on the others; every node needs this project installed
 with the ``ray`` extra, as the env runners build the envs there).
 
@@ -390,10 +390,10 @@ def train(
         Rewrite the checkpoint every this many iterations (and after the last).
     torch_threads : int or None
         Torch's intra-op threads in this process, where the learner runs,
-        during the run (``None``: torch's default, one per core). On this
-        project's 2-core machine one thread learned 2-4 times faster than
-        two whenever other processes were busy; raise it on a driver with
-        idle cores.
+        during the run (``None``: torch's default, one per core). One thread
+        by default: a learner sharing its cores with the env runners loses
+        more to contention than it gains (``docs/performance_notes.md``);
+        raise it on a driver with idle cores.
     quiet : bool
         Print nothing.
     argv : sequence of str, optional
@@ -404,6 +404,14 @@ def train(
     Returns
     -------
     TrainResult
+
+    Raises
+    ------
+    TypeError
+        If ``out`` is not a path.
+    ValueError
+        If a count is not a positive int, ``address`` is empty, or :func:`build_config` refuses
+        its arguments (all before Ray starts).
     """
     if isinstance(timesteps, bool) or not isinstance(timesteps, int) or timesteps < 1:
         raise ValueError(f"timesteps must be a positive int, got {timesteps!r}")

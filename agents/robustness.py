@@ -116,6 +116,11 @@ def record_episode(env: EpisodeRecorder, agent: Agent, seed: int) -> Episode:
     Returns
     -------
     Episode
+
+    Raises
+    ------
+    TypeError
+        If ``env`` is not an ``EpisodeRecorder``.
     """
     if not isinstance(env, EpisodeRecorder):
         raise TypeError(f"env must be an EpisodeRecorder, got {type(env).__name__}")
@@ -142,7 +147,7 @@ def evaluate(
     Parameters
     ----------
     policies : sequence of str
-        Agent specs (see the module docstring).
+        Agent specs (see the module docstring), each labelled ``LABEL=SPEC`` or by itself.
     layouts : sequence of str, optional
         Values of the env's ``layout`` (:data:`seif_gym.world.LAYOUTS`); default the task's own.
     seeds : sequence of int
@@ -172,6 +177,15 @@ def evaluate(
         :data:`seif_gym.harness.RESULT_COLUMNS`.
     series : list of dict
         The per-step curves of each row (:func:`seif_gym.harness.score_replay`).
+
+    Raises
+    ------
+    ValueError
+        If no agent, layout or seed is given, ``steps`` or ``nees_every`` is not positive, a layout
+        or filter is unknown, an agent spec is unknown, or ``env_kwargs`` holds ``layout`` (all before
+        any episode runs).
+    FileNotFoundError
+        If a saved model does not exist.
     """
     if isinstance(policies, str):
         policies = [p for p in policies.split(",") if p]

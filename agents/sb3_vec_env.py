@@ -46,6 +46,11 @@ class NativeVecEnv(VecEnv):
         The first :meth:`reset` seeds sub-env ``i`` with ``seed + i`` (as SB3's ``make_vec_env``).
     env_kwargs : dict, optional
         Keyword arguments of the env.
+
+    Raises
+    ------
+    TypeError, ValueError
+        If ``num_envs`` is not a positive int; ``gymnasium.error.Error`` for an unknown ``env_id``.
     """
 
     def __init__(self, env_id: str, num_envs: int, seed: int | None = None,

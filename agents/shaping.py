@@ -10,9 +10,8 @@ where the swept fraction is the share of the env's swept-area grid cells
 poses) that are marked. Potential-based shaping leaves the optimal policies of
 the discounted task unchanged; it only pays sooner for what the map-error
 reward pays later: the corners and far edges of the arena, where the last
-unmapped landmarks are, lie outside the egocentric map window most of the
-time, and the policy without shaping often left one or two of them unmapped.
-The wrapper changes the reward only; the observation and the episode are the
+unmapped landmarks tend to be, lie outside the egocentric map window most of
+the time. The wrapper changes the reward only; the observation and the episode are the
 env's. Evaluation (``python -m agents.evaluate``) always runs unwrapped envs.
 
 >>> import gymnasium as gym
@@ -50,9 +49,17 @@ class CoverageShaping(gym.Wrapper, gym.utils.RecordConstructorArgs):
     gamma : float, default 0.995
         The discount of the training algorithm (``F`` is policy-invariant for it).
 
+    Raises
+    ------
+    TypeError
+        If ``env.unwrapped`` is not a ``SeifExploreEnv``.
+    ValueError
+        If ``coef`` or ``gamma`` is negative or not finite, or ``gamma`` exceeds 1.
+
     Notes
     -----
-    Extra ``info`` key: ``swept_fraction`` (``Phi`` after the step).
+    Extra ``info`` key: ``swept_fraction`` (``Phi`` after the step). At the end of an episode
+    (``terminated``) the next potential is 0, so ``F_T = -coef * Phi(s_{T-1})``.
     """
 
     def __init__(self, env: gym.Env, coef: float = 1.0, gamma: float = 0.995) -> None:

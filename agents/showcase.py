@@ -51,9 +51,30 @@ ENV_ID = LATEST_ID
 
 def record_gif(policy_path: Path, path: Path, seed: int, every: int = 4, size: int = 400, env_id: str = ENV_ID,
                *, verbose: bool = False) -> Path:  # fmt: skip
-    """One episode of the policy at ``policy_path`` on ``env_id`` as an animated GIF (every ``every``-th frame).
+    """One episode of a saved policy on ``env_id`` as an animated GIF, deterministic actions.
 
-    With ``verbose``, a progress bar over the episode's steps on stderr.
+    Parameters
+    ----------
+    policy_path : Path
+        A saved SB3 / sb3-contrib model (:class:`~agents.sb3_agent.SB3Agent`); a recurrent policy's
+        state is carried from step to step, as :func:`agents.evaluate.run_episode` does.
+    path : Path
+        The GIF written.
+    seed : int
+        Seed of ``env.reset``.
+    every : int
+        Keep every ``every``-th frame (and the first and last).
+    size : int
+        Width and height of the frames, pixels.
+    env_id : str
+        A registered env id.
+    verbose : bool
+        A progress bar over the episode's steps on stderr.
+
+    Returns
+    -------
+    Path
+        ``path``.
     """
     from PIL import Image
 
@@ -81,7 +102,21 @@ def record_gif(policy_path: Path, path: Path, seed: int, every: int = 4, size: i
 
 
 def verdict_sentence(summary: Mapping[str, Any], label: str) -> str:
-    """One sentence: whether agent ``label`` beats the best baseline by the paired comparison of ``summary``."""
+    """One sentence: whether agent ``label`` beats the best baseline by the paired comparison of ``summary``.
+
+    Parameters
+    ----------
+    summary : mapping
+        :func:`agents.evaluate.evaluate_agents`' summary.
+    label : str
+        An agent of it.
+
+    Returns
+    -------
+    str
+        Its mean final map error and, when there is a baseline to compare with, the verdict of
+        :func:`agents.evaluate.paired_verdict` in words with the interval.
+    """
     paired = summary["paired"]
     reference = paired["reference"]
     mean = summary["agents"][label]["final_map_error"]["mean"]

@@ -14,7 +14,7 @@ the time limit as the end of the task.
 budget is part of the task's registration, and an agent can count its own
 steps, so :class:`TimeLeftClock` computes the same entry on the agent's side
 when a policy trained with it is evaluated on the plain env
-(:class:`agents.evaluate.SB3Agent` and the validation callback use it).
+(:class:`agents.sb3_agent.SB3Agent` and the validation callback use it).
 
 >>> import gymnasium as gym
 >>> import seif_gym
@@ -54,7 +54,13 @@ def uses_time_left(observation_space: Any) -> bool:
 
 
 def episode_limit(env: Any) -> int:
-    """The time limit of ``env``'s registration (``env.spec.max_episode_steps``); ``ValueError`` if it has none."""
+    """The time limit of ``env``'s registration (``env.spec.max_episode_steps``).
+
+    Raises
+    ------
+    ValueError
+        If ``env`` has no positive integer time limit.
+    """
     spec = getattr(env, "spec", None)
     limit = getattr(spec, "max_episode_steps", None)
     if limit is None or isinstance(limit, bool) or not isinstance(limit, (int, np.integer)) or limit < 1:
@@ -76,6 +82,13 @@ class TimeLeftObservation(gym.Wrapper, gym.utils.RecordConstructorArgs):
         An env with a ``Dict`` observation space and a time limit
         (``spec.max_episode_steps``, which ``gym.make`` sets from the
         registration or its ``max_episode_steps`` argument).
+
+    Raises
+    ------
+    TypeError
+        If the observation space is not a ``Dict``.
+    ValueError
+        If it already holds :data:`TIME_LEFT`, or the env has no time limit.
 
     Notes
     -----
@@ -140,7 +153,25 @@ class TimeLeftClock:
             self._steps[int(index)] = 0
 
     def observe(self, observation: Mapping[str, np.ndarray], episode_start: Any = None) -> dict[str, np.ndarray]:
-        """``observation`` with :data:`TIME_LEFT` added (single or batched), then one more step counted."""
+        """``observation`` with :data:`TIME_LEFT` added (single or batched), then one more step counted.
+
+        Parameters
+        ----------
+        observation : mapping of str to ndarray
+            One env's observation, or a batch (a leading axis on every entry).
+        episode_start : array_like of bool, optional
+            SB3's flags, one per env: a set flag restarts that env's count first.
+
+        Returns
+        -------
+        dict
+            ``observation`` with the entry (returned as it is if it already holds one).
+
+        Raises
+        ------
+        ValueError
+            If ``episode_start`` does not have one flag per env (the counts are left as they were).
+        """
         if TIME_LEFT in observation:
             return dict(observation)
         # the env's pose entry is 1-D: a leading axis is the batch's

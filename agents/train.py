@@ -43,7 +43,7 @@ here what it means there, and a run of either command is read by
 * glibc's ``malloc`` kept from handing freed memory back to the kernel
   (:func:`agents.allocator.keep_freed_memory`; ``--no-keep-freed-memory``:
   off): the PPO update's tensors reuse the heap's pages instead of faulting
-  in fresh ones, the same weights in about 2/3 of the time;
+  in fresh ones, with the same weights;
 * ``--out DIR``: the run's folder exactly (default: rl-zoo3's
   ``-f logs`` layout, ``logs/<algo>/<EnvId>_<N>``, which ``enjoy -f logs``
   finds).
@@ -87,11 +87,13 @@ from agents.cli import json_object, resolve_task, tasks_epilog
 from agents.hyperparams import HYPERPARAMS_DIR
 from seif_gym import LATEST_ID
 
-#: The algorithms of rl-zoo3 (``rl_zoo3.ALGOS``); configs ``agents/hyperparams/<algo>.yml`` exist for ``ppo``, ``ppo_lstm`` and ``sac``.
 #: ``before_learn(args, experiment, model)``: a hook called after the model is built, before it learns.
 BeforeLearn = Callable[[argparse.Namespace, Any, Any], None]
 
+#: The algorithms of rl-zoo3 (``rl_zoo3.ALGOS``); configs ``agents/hyperparams/<algo>.yml`` exist for ``ppo``,
+#: ``ppo_lstm`` and ``sac``.
 ALGOS = ("a2c", "ddpg", "dqn", "ppo", "sac", "td3", "ars", "crossq", "qrdqn", "tqc", "trpo", "ppo_lstm")
+#: The values of ``--vec-env``.
 VEC_ENVS = ("native", "dummy", "subproc")
 
 
@@ -236,7 +238,7 @@ def build_parser() -> argparse.ArgumentParser:
         "--keep-freed-memory",
         action=argparse.BooleanOptionalAction,
         default=True,
-        help="glibc's malloc keeps freed memory for reuse: the same run in about 2/3 of the time, its peak "
+        help="glibc's malloc keeps freed memory for reuse instead of faulting in fresh pages, its peak "
         "memory held to the end (agents.allocator; default on)",
     )
     parser.add_argument("--quiet", action="store_true", help="print nothing: no progress bar, no log table")
@@ -531,6 +533,14 @@ def prepare(args: argparse.Namespace, before_learn: BeforeLearn | None = None) -
     -------
     experiment : SeifExperiment
     model : stable_baselines3.common.base_class.BaseAlgorithm
+
+    Raises
+    ------
+    ValueError
+        If ``--env`` or a ``--mix-env`` is not registered, their spaces differ (:func:`mixture_ids`), or
+        the config or an override is not one rl-zoo3 takes.
+    FileNotFoundError
+        If ``--conf-file`` or ``--init-from`` does not exist.
     """
     from stable_baselines3.common.utils import set_random_seed
 
@@ -573,8 +583,14 @@ def last_update_progress(total_timesteps: int, rollout_steps: int) -> float:
 
     SB3 collects whole rollouts of ``rollout_steps`` (``n_steps * n_envs``) until
     ``total_timesteps`` is reached, and updates after each at
-    ``1 - num_timesteps / total_timesteps``: below zero at the last update when
-    ``total_timesteps`` is not a multiple of ``rollout_steps``.
+    ``1 - num_timesteps / total_timesteps``: with ``T = total_timesteps`` and
+    ``R = rollout_steps``, the last update is at ``1 - R * ceil(T / R) / T``,
+    below zero when ``T`` is not a multiple of ``R``.
+
+    Raises
+    ------
+    ValueError
+        If either count is not positive.
     """
     return 1.0 - _last_update_step(total_timesteps, rollout_steps) / total_timesteps
 
@@ -605,7 +621,25 @@ def negative_schedule_warnings(model: Any, total_timesteps: int) -> list[str]:
 
 
 def train(args: argparse.Namespace, before_learn: BeforeLearn | None = None) -> Path:
-    """Train and save; returns the run's folder (``before_learn``: as :func:`prepare`)."""
+    """Train and save the run of ``args``.
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        The arguments of :func:`build_parser`.
+    before_learn : callable, optional
+        As :func:`prepare`.
+
+    Returns
+    -------
+    Path
+        The run's folder.
+
+    Raises
+    ------
+    ValueError, FileNotFoundError
+        As :func:`prepare`, before anything is trained.
+    """
     return _learn_and_save(args, *prepare(args, before_learn))
 
 

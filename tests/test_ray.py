@@ -32,7 +32,7 @@ import torch
 from ray.cluster_utils import Cluster
 
 import seif_gym  # noqa: F401
-from agents import make_agent
+from agents import load_agent
 from agents.evaluate import evaluate_agents
 from agents.parallel import Executor
 from agents.rllib_agent import BeliefRLModule, RLlibAgent, module_checkpoint
@@ -151,7 +151,7 @@ def test_training_changed_the_policy(trained):
 
 def test_rllib_agent_acts_deterministically(trained):
     env = gym.make("SeifExplore-v0", max_episode_steps=6)
-    agent = make_agent(f"rllib:{trained.checkpoint}", env)
+    agent = load_agent(f"rllib:{trained.checkpoint}", env)
     assert isinstance(agent, RLlibAgent)
     obs, _ = env.reset(seed=11)
     observations, actions = [], []

@@ -6,20 +6,29 @@ r"""Compare agents on the same seeds: ``python -m agents.evaluate``.
         --episodes 10 --seed 1000 [--env SeifExplore-v2] [--env-kwargs '{"layout": "loop"}'] [--out DIR] \
         [--bootstrap 10000] [--workers N | --ray auto|ADDRESS] [--quiet]
 
-Every agent runs ``N`` episodes on the seeds ``S, S+1, …, S+N−1`` (the same
-for every agent; ``env.reset(seed=s)`` fixes the landmark layout, the start
-and all noise of episode ``s``). An agent is a name of
-:data:`agents.BASELINES` (built with ``make_agent(name, env)``; ``random``
-is seeded with ``S``), the path of a Stable-Baselines3 ``.zip`` (a PPO,
-RecurrentPPO or SAC model, :func:`sb3_algorithm`; if a ``vecnormalize.pkl``
-lies next to it, its observation normalisation is applied; labelled by the file's stem, or by its folder's
-name for ``model.zip`` / ``best_model.zip``) or ``rllib:CHECKPOINT``; any of
-them may be labelled ``LABEL=SPEC``. Every agent acts with ``deterministic=True``.
+Every agent runs ``N`` episodes on the seeds ``S, S+1, …, S+N−1`` of the task
+``--env`` (an env id, or a family for its newest version; the same seeds for
+every agent: ``env.reset(seed=s)`` fixes the landmark layout, the start and
+all noise of episode ``s``). An agent is what :func:`agents.load_agent`
+builds: a name of :data:`agents.BASELINES` (``random`` is seeded with ``S``),
+a shipped policy's name (:data:`agents.loading.SHIPPED_POLICIES`), the path
+of a Stable-Baselines3 / sb3-contrib ``.zip`` (PPO, RecurrentPPO or SAC,
+:func:`agents.sb3_agent.sb3_algorithm`; the observation normalisation saved
+with it is applied; labelled by the file's stem, or by its folder's name for
+``model.zip`` / ``best_model.zip``) or ``rllib:CHECKPOINT``; any of them may
+be labelled ``LABEL=SPEC``. Every agent acts with ``deterministic=True``.
 ``--env-kwargs`` is a JSON object passed to ``gym.make`` (it may hold
 ``max_episode_steps``). The episodes run one after another in this process,
 on ``--workers N`` local processes or as Ray tasks on a cluster (``--ray``;
-:mod:`agents.parallel`, ``docs/ray.md``), with the same rows but for the
-measured ``decision_time_ms``.
+:mod:`agents.parallel`, ``docs/training/ray.md``), with the same rows but for
+the measured ``decision_time_ms``.
+
+The package's modules: :mod:`~agents.evaluate.rollout` (running the
+episodes), :mod:`~agents.evaluate.statistics` (intervals and paired
+differences), :mod:`~agents.evaluate.report` (tables, plot, files, stored
+runs), :mod:`~agents.evaluate.schema` (the names below) and
+:mod:`~agents.evaluate.cli` (the command line). Every public name of them is
+importable from :mod:`agents.evaluate`.
 
 The metrics come from the env's ``info`` (the ground truth is read here, by
 the evaluation, never by the agents). Written to ``--out`` (default

@@ -36,7 +36,19 @@ def _format(stat: Mapping[str, Any], digits: int = 3) -> str:
 
 
 def markdown_table(summary: Mapping[str, Any]) -> str:
-    """The means ± 95 % CI half-widths of ``summary``, one row per agent, as a Markdown table."""
+    """The means ± 95 % CI half-widths of ``summary``, one row per agent, as a Markdown table.
+
+    Parameters
+    ----------
+    summary : mapping
+        :func:`~agents.evaluate.rollout.evaluate_agents`' summary.
+
+    Returns
+    -------
+    str
+        A header, then one row per agent: the columns of
+        :data:`~agents.evaluate.schema.TABLE_COLUMNS`.
+    """
     headers = ["agent", *(header for _, header in TABLE_COLUMNS)]
     lines = ["| " + " | ".join(headers) + " |", "|" + "|".join(["---"] + ["--:"] * len(TABLE_COLUMNS)) + "|"]
     for label, entry in summary["agents"].items():
@@ -57,9 +69,20 @@ def signed_interval(low: float | None, high: float | None, digits: int = 3) -> s
 
 
 def paired_table(summary: Mapping[str, Any], digits: int = 3) -> str:
-    """The paired comparison of ``summary`` (:func:`paired_comparison`) as a sentence and a Markdown table.
+    """The paired comparison of ``summary`` as a sentence and a Markdown table.
 
-    Empty when there is no reference (no baseline among the agents).
+    Parameters
+    ----------
+    summary : mapping
+        :func:`~agents.evaluate.rollout.evaluate_agents`' summary; its ``paired`` entry
+        (:func:`~agents.evaluate.statistics.paired_comparison`) is shown.
+    digits : int
+        Decimals of the differences.
+
+    Returns
+    -------
+    str
+        Empty when there is no reference (no baseline among the agents).
     """
     paired = summary.get("paired") or {}
     reference = paired.get("reference")
@@ -92,10 +115,22 @@ def write_outputs(
 ) -> dict[str, Path]:
     """Write ``results.csv``, ``summary.json``, ``summary.md`` and ``map_error.png`` into ``out``.
 
+    Parameters
+    ----------
+    rows, summary
+        :func:`~agents.evaluate.rollout.evaluate_agents`' results (the files' schema: :mod:`agents.evaluate`).
+    out : str or PathLike
+        The folder, created if missing; files of the same names are replaced.
+
     Returns
     -------
     dict
         ``{"csv", "json", "markdown", "plot"}`` -> path written.
+
+    Raises
+    ------
+    ValueError
+        If the summary holds a number JSON cannot write (``nan``, ``inf``).
     """
     folder = Path(out)
     folder.mkdir(parents=True, exist_ok=True)
@@ -118,7 +153,15 @@ def write_outputs(
 
 
 def plot_map_error(summary: Mapping[str, Any], path: str | os.PathLike) -> None:
-    """Mean map error over time per agent, with the 95 % band, saved to ``path``."""
+    """Mean map error over time per agent, with the 95 % band, saved to ``path`` (any format matplotlib writes).
+
+    Parameters
+    ----------
+    summary : mapping
+        Needs ``env_id``, ``episodes`` and every agent's ``map_error_over_time``.
+    path : str or PathLike
+        The image's path; its suffix picks the format.
+    """
     import matplotlib
 
     matplotlib.use("Agg", force=False)
@@ -165,7 +208,7 @@ def load_stored_run(
     running them again. On one machine an episode is determined by the env,
     its arguments, the agent and the seed, so the stored ones are what a new
     run there would give (another machine may round a planner's near-tie
-    differently: ``docs/benchmark.md``).
+    differently: ``docs/benchmark/protocol.md``).
 
     Parameters
     ----------
@@ -173,7 +216,7 @@ def load_stored_run(
         Holds ``results.csv`` and ``summary.json`` of the earlier run.
     env_id, env_kwargs, seeds
         This run's: the stored run must have been made with the same ones, in
-        a schema of :data:`READABLE_SCHEMA_VERSIONS` (:func:`read_run`).
+        a schema of :data:`~agents.evaluate.schema.READABLE_SCHEMA_VERSIONS` (:func:`read_run`).
     labels : sequence of str
         This run's agent labels, which the stored run's may not repeat.
     name : str
@@ -182,9 +225,9 @@ def load_stored_run(
     Returns
     -------
     rows : list of dict
-        Its ``results.csv`` rows (keys :data:`RESULT_COLUMNS`, typed as written).
+        Its ``results.csv`` rows (keys :data:`~agents.evaluate.schema.RESULT_COLUMNS`, typed as written).
     agents : dict
-        Its ``summary.json["agents"]`` entries (label -> :data:`AGENT_KEYS`).
+        Its ``summary.json["agents"]`` entries (label -> :data:`~agents.evaluate.schema.AGENT_KEYS`).
 
     Raises
     ------
@@ -216,7 +259,7 @@ def load_stored_run(
 
 
 def read_run(folder: str | os.PathLike, name: str = "folder") -> tuple[list[dict[str, Any]], dict[str, Any]]:
-    """The rows and summary of an ``--out`` folder of this command, as written (schemas :data:`READABLE_SCHEMA_VERSIONS`).
+    """The rows and summary of an ``--out`` folder of this command, as written (schemas :data:`~agents.evaluate.schema.READABLE_SCHEMA_VERSIONS`).
 
     Parameters
     ----------
@@ -228,7 +271,7 @@ def read_run(folder: str | os.PathLike, name: str = "folder") -> tuple[list[dict
     Returns
     -------
     rows : list of dict
-        The ``results.csv`` rows (keys :data:`RESULT_COLUMNS`, typed as written).
+        The ``results.csv`` rows (keys :data:`~agents.evaluate.schema.RESULT_COLUMNS`, typed as written).
     summary : dict
         ``summary.json``.
 
@@ -240,7 +283,7 @@ def read_run(folder: str | os.PathLike, name: str = "folder") -> tuple[list[dict
         If either file is missing.
     ValueError
         If either file cannot be read as this command writes it, or its schema
-        is not one of :data:`READABLE_SCHEMA_VERSIONS`.
+        is not one of :data:`~agents.evaluate.schema.READABLE_SCHEMA_VERSIONS`.
     """
     if not isinstance(folder, (str, os.PathLike)):
         raise TypeError(f"{name} must be a folder's path, got {type(folder).__name__}")

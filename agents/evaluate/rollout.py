@@ -30,19 +30,59 @@ __all__ = ["build_agent", "evaluate_agents", "make_evaluation_env", "run_episode
 
 
 def build_agent(spec: str, env: gym.Env, env_id: str, env_kwargs: Mapping[str, Any], seed: int) -> Agent:
-    """:func:`agents.load_agent` for an evaluation of ``env_id`` with ``env_kwargs`` (``random`` seeded with ``seed``)."""
+    """The agent of ``spec`` for an evaluation of ``env_id`` with ``env_kwargs``: :func:`agents.load_agent`.
+
+    Parameters
+    ----------
+    spec : str
+        A baseline, a shipped policy, a saved model's path or ``rllib:CHECKPOINT`` (no ``LABEL=``).
+    env : gymnasium.Env
+        The env it acts in.
+    env_id : str
+        The registered id of ``env``.
+    env_kwargs : mapping
+        The keyword arguments ``env`` was made with (a saved model's statistics are loaded on an env
+        made alike).
+    seed : int
+        Seed of the ``random`` baseline.
+
+    Returns
+    -------
+    Agent
+
+    Raises
+    ------
+    ValueError, FileNotFoundError
+        As :func:`agents.loading.load_agent`.
+    """
     return load_agent(spec, env, seed=seed, env_factory=lambda: gym.make(env_id, **env_kwargs))
 
 
 def run_episode(agent: Agent, env: gym.Env, seed: int) -> tuple[dict[str, Any], list[float]]:
-    """One episode of ``agent`` in ``env`` from ``env.reset(seed=seed)``.
+    """One episode of ``agent`` in ``env`` from ``env.reset(seed=seed)``, with deterministic actions.
+
+    Parameters
+    ----------
+    agent : Agent
+        Anything with SB3's ``predict``; its ``reset()``, if it has one, is called after the env's.
+        Its ``state`` is passed back at every step (a recurrent policy's memory), with
+        ``episode_start`` set at the first.
+    env : gymnasium.Env
+        A ``SeifExplore`` env (its ``info`` holds the ground truth the metrics read).
+    seed : int
+        Seed of ``env.reset``.
 
     Returns
     -------
     row : dict
-        The :data:`RESULT_COLUMNS` but ``agent`` and ``episode``.
+        The :data:`~agents.evaluate.schema.RESULT_COLUMNS` but ``agent`` and ``episode``.
     map_errors : list of float
         ``info["map_error"]`` after the reset and after every step.
+
+    Notes
+    -----
+    ``pose_rmse`` is ``sqrt(mean_t ‖p_t − p̂_t‖²)`` over the positions of the reset and of every
+    step; ``decision_time_ms`` the mean wall time of one ``predict``.
     """
     observation, info = env.reset(seed=seed)
     if hasattr(agent, "reset"):
@@ -87,7 +127,13 @@ def _carries_over(target: str) -> bool:
 
 
 def without_exact_nees(env_kwargs: Mapping[str, Any]) -> dict[str, Any]:
-    """``env_kwargs`` with ``exact_pose_nees=False`` unless they set it (:func:`make_evaluation_env`)."""
+    """``env_kwargs`` with ``exact_pose_nees=False`` unless they set it (:func:`make_evaluation_env`).
+
+    Raises
+    ------
+    TypeError
+        If ``env_kwargs`` is not a mapping.
+    """
     if not isinstance(env_kwargs, Mapping):
         raise TypeError(f"env_kwargs must be a mapping, got {type(env_kwargs).__name__}")
     return {"exact_pose_nees": False, **env_kwargs}
@@ -96,11 +142,15 @@ def without_exact_nees(env_kwargs: Mapping[str, Any]) -> dict[str, Any]:
 def make_evaluation_env(env_id: str, env_kwargs: Mapping[str, Any]) -> gym.Env:
     """The env an evaluation steps: ``gym.make(env_id, **env_kwargs)`` with ``exact_pose_nees=False``.
 
-    No metric of an evaluation reads ``info["pose_nees"]``, and its exact pose
-    marginal factorises the information matrix every step (on the large
-    world's 120-landmark maps 40% of an episode's time); everything else the
-    env computes is the same (``tests/test_agents.py``). ``env_kwargs`` may
-    still ask for it.
+    No metric of an evaluation reads ``info["pose_nees"]``, whose exact pose
+    marginal factorises the information matrix every step (its cost:
+    ``docs/performance_notes.md``); everything else the env computes is the
+    same (``tests/test_agents.py``). ``env_kwargs`` may still ask for it.
+
+    Raises
+    ------
+    TypeError
+        If ``env_kwargs`` is not a mapping.
     """
     return gym.make(env_id, **without_exact_nees(env_kwargs))
 
@@ -164,7 +214,7 @@ def evaluate_agents(
         Where the episodes run (default: one after another in this process);
         the rows are the same on every executor but for ``decision_time_ms``.
     stored_run : str or PathLike, optional
-        An earlier run's folder (:func:`load_stored_run`: same env, arguments
+        An earlier run's folder (:func:`~agents.evaluate.report.load_stored_run`: same env, arguments
         and seeds): its agents' episodes join this run's, after them, without
         running again; its baselines count as baselines of the paired
         comparison. Its labels may not repeat this run's.
@@ -172,9 +222,19 @@ def evaluate_agents(
     Returns
     -------
     rows : list of dict
-        One per agent × episode, keys :data:`RESULT_COLUMNS`.
+        One per agent × episode, keys :data:`~agents.evaluate.schema.RESULT_COLUMNS`.
     summary : dict
-        Keys :data:`SUMMARY_KEYS` (see the module docstring).
+        Keys :data:`~agents.evaluate.schema.SUMMARY_KEYS` (their meaning: :mod:`agents.evaluate`).
+
+    Raises
+    ------
+    ValueError
+        If no agent is given, ``episodes`` is not positive, an agent spec is unknown, or the stored
+        run does not fit (:func:`~agents.evaluate.report.load_stored_run`), all before any episode runs.
+    FileNotFoundError
+        If a saved model or the stored run's files do not exist.
+    TypeError
+        If ``stored_run`` is not a path.
     """
     if isinstance(agent_specs, str):
         agent_specs = [spec for spec in agent_specs.split(",") if spec]

@@ -143,10 +143,18 @@ def paired_difference(values: Sequence[float], reference: Sequence[float], confi
 
 
 def paired_verdict(paired: Mapping[str, Any]) -> str:
-    """``"beats"`` if the t interval of the difference lies below zero (lower is better), ``"worse"`` above it.
+    """The verdict of a paired difference (lower is better): only an interval that excludes zero decides.
 
-    ``"tie (interval holds 0)"`` otherwise, ``"n/a (one seed)"`` without an
-    interval: an agent beats another only when the interval excludes zero.
+    Parameters
+    ----------
+    paired : mapping
+        Holds ``ci95_low`` and ``ci95_high`` (:func:`paired_difference`, :func:`recipe_difference`).
+
+    Returns
+    -------
+    str
+        ``"beats"`` if the interval lies below zero, ``"worse"`` above it, ``"tie (interval holds 0)"``
+        if it holds zero, ``"n/a (one seed)"`` without an interval.
     """
     low, high = paired["ci95_low"], paired["ci95_high"]
     if low is None or high is None:

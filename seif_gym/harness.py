@@ -3,8 +3,8 @@ r"""The replay harness: recorded episodes replayed through every filter, and sco
 .. code-block:: bash
 
     # record with policies, then score (the agents package: it owns the policies)
-    python -m agents.robustness --policies random,frontier,revisit,ppo=runs/ppo/model.zip \
-        --layouts uniform,loop --seeds 5 --seed 0 --steps 300 --out eval/robustness
+    python -m agents.robustness --agents random,frontier,revisit,ppo=runs/ppo/model.zip \
+        --layouts uniform,loop --episodes 5 --seed 0 --steps 300 --out eval/robustness
     # score episodes recorded before (this module: nothing but the library)
     python -m seif_gym.harness --episodes-dir eval/robustness/episodes --filters seif-k8,eseif,ekf --out eval/replayed
 
@@ -919,7 +919,7 @@ def _split(text: str) -> list[str]:
 
 
 #: Options of the recording command line, which moved to ``python -m agents.robustness``.
-_RECORDING_OPTIONS = ("--policies", "--layouts", "--seeds", "--seed", "--steps", "--env", "--env-kwargs",
+_RECORDING_OPTIONS = ("--agents", "--policies", "--layouts", "--seeds", "--seed", "--steps", "--env", "--env-kwargs",
                       "--no-save-episodes")  # fmt: skip
 
 

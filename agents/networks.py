@@ -108,7 +108,36 @@ class BeliefExtractor(BaseFeaturesExtractor):
         return torch.cat([belief, *vectors], dim=1)
 
 
-class BeliefPolicy(MultiInputActorCriticPolicy):
+class _ObservationChecked:
+    """Refuses an observation that lacks entries of the policy's space, saying what to use instead.
+
+    A policy trained with entries the env does not give (the budget's clock, :mod:`agents.memories`)
+    must compute them on the agent's side: loaded as a bare Stable-Baselines3 model it would fail deep
+    inside the extractor with a ``KeyError``.
+    """
+
+    observation_space: gym.spaces.Space
+
+    def obs_to_tensor(self, observation: Any) -> Any:
+        """SB3's ``obs_to_tensor``, after checking that a dict ``observation`` has every entry.
+
+        Raises
+        ------
+        ValueError
+            If ``observation`` is a dict without an entry of the policy's ``Dict`` space.
+        """
+        if isinstance(observation, dict) and isinstance(self.observation_space, gym.spaces.Dict):
+            missing = sorted(set(self.observation_space.spaces) - set(observation))
+            if missing:
+                raise ValueError(
+                    f"observation lacks {missing}: entries this policy computes on its own side; act with "
+                    "agents.load_agent(PATH, env) (or agents.pretrained(NAME) for a shipped policy), which "
+                    "computes them, instead of the bare Stable-Baselines3 model"
+                )
+        return super().obs_to_tensor(observation)  # type: ignore[misc]
+
+
+class BeliefPolicy(_ObservationChecked, MultiInputActorCriticPolicy):
     """SB3's ``MultiInputPolicy`` (actor-critic) with :class:`BeliefExtractor` by default.
 
     Takes every argument of
@@ -191,7 +220,7 @@ def fused_lstm_sequence(
     return torch.flatten(output.transpose(0, 1), start_dim=0, end_dim=1), states
 
 
-class BeliefRecurrentPolicy(RecurrentMultiInputActorCriticPolicy):
+class BeliefRecurrentPolicy(_ObservationChecked, RecurrentMultiInputActorCriticPolicy):
     """sb3-contrib's ``RecurrentPPO`` ``MultiInputLstmPolicy`` with :class:`BeliefExtractor` by default.
 
     The LSTM runs on the extractor's features, so the policy can remember
@@ -230,7 +259,7 @@ class BeliefRecurrentPolicy(RecurrentMultiInputActorCriticPolicy):
             self._process_sequence = fused_lstm_sequence  # type: ignore[method-assign, assignment]
 
 
-class BeliefSACPolicy(SACMultiInputPolicy):
+class BeliefSACPolicy(_ObservationChecked, SACMultiInputPolicy):
     """SB3's ``SAC`` ``MultiInputPolicy`` with :class:`BeliefExtractor` by default.
 
     Actor and critics each get their own extractor (SB3's default for SAC,

@@ -96,3 +96,15 @@ def test_shipped_files_hold_what_acting_needs_only(name):
     assert critic and all(not weights[key].any() for key in critic)  # the value function, zeroed
     actor = [key for key in weights if key.startswith(("pi_features_extractor.", "action_net.", "mlp_extractor.policy"))]
     assert actor and all(weights[key].any() for key in actor)
+
+
+def test_a_bare_sb3_load_of_a_policy_with_its_own_entries_says_what_to_use():
+    from stable_baselines3 import PPO
+
+    path = ROOT / "research" / "policies" / "ppo_budget_v2.zip"  # trained with the budget's clock
+    env = gym.make("SeifExploreBudget-v2")
+    observation, _ = env.reset(seed=0)
+    with pytest.raises(ValueError, match=r"lacks \['time_left'\].*agents.load_agent"):
+        PPO.load(path, device="cpu").predict(observation)
+    action, _ = agents.load_agent(str(path), env).predict(observation, deterministic=True)  # the clock inside
+    assert env.action_space.contains(action)

@@ -18,6 +18,7 @@ from agents.baselines.geometry import GEOMETRY_READS, Geometry, env_list, unwrap
 from seif_gym.observation import (
     read_belief_map,
 )
+from seif_gym.slam.rollout import Rollouts, expected_rollouts_trusted
 from seif_gym.type_aliases import FloatArray
 
 __all__ = ["INFO_GAIN_READS", "InfoGainAgent"]
@@ -40,11 +41,13 @@ class InfoGainAgent(FrontierAgent):
     Every ``replan_every`` steps, for each candidate arc (every ``(v, w)`` of
     ``speeds × turn_rates``, as actions in ``[-1, 1]``):
 
-    1. a deep copy of the env's filter is rolled ``horizon`` steps forward:
+    1. a copy of the env's filter is rolled ``horizon`` steps forward:
        ``predict`` with the arc's control, then ``update`` with the
        *expected*, noise-free measurements (``sensor.predict`` of the
        estimated landmark positions) of the mapped landmarks inside the
-       sensor's range and field of view from the predicted pose;
+       sensor's range and field of view from the predicted pose
+       (:func:`~seif_gym.slam.rollout.expected_rollouts`: all arcs at once, in
+       compiled code for a SEIF or an ESEIF; the env's filter is not changed);
     2. ``gain`` = decrease of ``sum(landmark_std) + pose_weight·sqrt(σx² + σy²)``
        (the pose from ``local_marginals``) from now to the horizon's end;
     3. ``explore`` = area (m²) of the unswept, in-arena cells of
@@ -58,7 +61,9 @@ class InfoGainAgent(FrontierAgent):
     Score ``gain + exploration_weight·explore − wall_penalty·walls``; the best
     arc is executed ``replan_every`` times (a bump, detected as by
     ``frontier``, interrupts it with a turn in place and a new plan). The wall time of each plan is
-    appended to :attr:`planning_times` (seconds).
+    appended to :attr:`planning_times` (seconds). :meth:`_plan_reference` computes the same plan one arc
+    at a time, with a deep copy of the filter each (the planner as first written): the same action and
+    the same scores, bit for bit (``tests/agents/test_info_gain_planner.py``).
 
     New landmarks are not predicted (the planner does not know where they
     are); the exploration term stands for them.
@@ -147,8 +152,57 @@ class InfoGainAgent(FrontierAgent):
         total = float(np.sum(filt.landmark_std())) if filt.num_landmarks else 0.0
         return total + self.pose_weight * math.sqrt(max(pose_cov[0, 0] + pose_cov[1, 1], 0.0))
 
+    def _uncertainties(self, rollouts: Rollouts) -> FloatArray:
+        """:meth:`uncertainty` of each rolled-out copy, from its marginals, shape (c,)."""
+        out = np.empty(len(rollouts.poses))
+        for k, (pose_cov, std) in enumerate(zip(rollouts.pose_covariances, rollouts.landmark_std)):
+            total = float(np.sum(std)) if len(std) else 0.0
+            out[k] = total + self.pose_weight * math.sqrt(max(pose_cov[0, 0] + pose_cov[1, 1], 0.0))
+        return out
+
+    def _swept_areas(self, observation: Observation, poses: FloatArray, start: FloatArray) -> FloatArray:
+        """:meth:`_swept_area` of every candidate's poses (c, horizon, 3) at once, shape (c,).
+
+        The same numbers: each cell and pose gets the same operations, but only the unswept in-arena
+        cells are tested, and the field of view only where the range test passed.
+        """
+        count = len(poses)
+        belief = read_belief_map(observation)
+        raster = self.raster(belief.shape[1])
+        candidate = (belief[0] < 0.5) & (belief[2] < 0.5)
+        if not candidate.any():
+            return np.zeros(count)
+        c, s = math.cos(start[2]), math.sin(start[2])
+        r2 = self.geometry.sensor_range**2
+        half_fov = 0.5 * self.geometry.fov
+        flat = poses.reshape(-1, 3)
+        dx, dy = flat[:, 0] - start[0], flat[:, 1] - start[1]
+        px, py = c * dx + s * dy, -s * dx + c * dy  # (forward, left) of each predicted pose
+        # a cell farther than range + the farthest pose from the start is out of every pose's range
+        reach = self.geometry.sensor_range + float(np.max(np.hypot(px, py))) + 1e-6
+        cells = candidate & (raster.distance <= reach)
+        if not cells.any():
+            return np.zeros(count)
+        forward, left = raster.forward[cells], raster.left[cells]
+        df = forward - px[:, None]
+        dl = left - py[:, None]
+        seen = df * df + dl * dl <= r2  # (c·horizon, cells)
+        if half_fov < math.pi:
+            turn = np.broadcast_to((flat[:, 2] - start[2])[:, None], seen.shape)
+            shifted = np.arctan2(dl[seen], df[seen]) - turn[seen] + np.pi
+            # x % 2π is x itself on [0, 2π) (fmod is exact): the modulo only where it can change something
+            outside = (shifted < 0.0) | (shifted >= 2.0 * np.pi)
+            shifted[outside] %= 2.0 * np.pi
+            seen[seen] = np.abs(shifted - np.pi) <= half_fov
+        covered = np.count_nonzero(seen.reshape(count, -1, len(forward)).any(axis=1), axis=1)
+        return covered.astype(np.float64) * raster.cell**2
+
     def _rollout(self, base: Any, control: FloatArray) -> tuple[Any, FloatArray]:
-        """Copy of the filter after ``horizon`` steps of ``control``, and the predicted poses (horizon, 3)."""
+        """Copy of the filter after ``horizon`` steps of ``control``, and the predicted poses (horizon, 3).
+
+        The reference planner's rollout (:meth:`_plan_reference`); :meth:`plan` rolls every candidate at
+        once with :func:`~seif_gym.slam.rollout.expected_rollouts`, which gives the same numbers.
+        """
         filt = copy.deepcopy(base.filter)
         dt = float(base.robot_config.dt)
         sensor = base.sensor
@@ -195,7 +249,22 @@ class InfoGainAgent(FrontierAgent):
         return float(np.count_nonzero(covered & candidate)) * raster.cell**2
 
     def plan(self, observation: Observation, index: int = 0) -> np.ndarray:
-        """Score every candidate arc for env ``index`` and return the best action (2,)."""
+        """Score every candidate arc for env ``index`` and return the best action (2,).
+
+        All candidates are rolled out together (:func:`~seif_gym.slam.rollout.expected_rollouts`) and
+        their swept areas computed together; the scores are those of :meth:`_plan_reference`, bit for bit.
+        """
+        return self._plan(observation, index, reference=False)
+
+    def _plan_reference(self, observation: Observation, index: int = 0) -> np.ndarray:
+        """:meth:`plan` one candidate at a time: a deep copy of the filter each, its own steps, one raster each.
+
+        The planner as it was written first, kept to check and time :meth:`plan` against
+        (``tests/agents/test_info_gain_planner.py``, ``benchmarks/bench_planner.py``).
+        """
+        return self._plan(observation, index, reference=True)
+
+    def _plan(self, observation: Observation, index: int, *, reference: bool) -> np.ndarray:
         started = time.perf_counter()
         base = self._env(index)
         if base.filter is None:
@@ -213,12 +282,23 @@ class InfoGainAgent(FrontierAgent):
         distance0 = float(np.hypot(*(target_world - start[:2])))
         count = len(self.candidates)
         gain, explore, walls = np.zeros(count), np.zeros(count), np.zeros(count)
-        for k, action in enumerate(self.candidates):
-            filt, poses = self._rollout(base, action * scale)
-            gain[k] = before - self.uncertainty(filt)
-            progress = distance0 - float(np.hypot(*(target_world - poses[-1, :2])))
-            explore[k] = self._swept_area(observation, poses, start) + self.progress_weight * progress
-            walls[k] = np.count_nonzero(np.any(np.abs(poses[:, :2]) > half - self.wall_margin, axis=1))
+        if reference:
+            for k, action in enumerate(self.candidates):
+                filt, poses = self._rollout(base, action * scale)
+                gain[k] = before - self.uncertainty(filt)
+                progress = distance0 - float(np.hypot(*(target_world - poses[-1, :2])))
+                explore[k] = self._swept_area(observation, poses, start) + self.progress_weight * progress
+                walls[k] = np.count_nonzero(np.any(np.abs(poses[:, :2]) > half - self.wall_margin, axis=1))
+        else:
+            rollouts = expected_rollouts_trusted(base.filter, self.candidates * scale, float(base.robot_config.dt),
+                                                 self.horizon)  # fmt: skip
+            gain[:] = before - self._uncertainties(rollouts)
+            swept = self._swept_areas(observation, rollouts.poses, start)
+            for k, poses in enumerate(rollouts.poses):
+                progress = distance0 - float(np.hypot(*(target_world - poses[-1, :2])))
+                explore[k] = float(swept[k]) + self.progress_weight * progress
+            walls[:] = np.count_nonzero(np.any(np.abs(rollouts.poses[:, :, :2]) > half - self.wall_margin, axis=2),
+                                        axis=1)  # fmt: skip
         score = gain + self.exploration_weight * explore - self.wall_penalty * walls
         best = int(np.argmax(score))
         self.last_plan = {

@@ -1312,3 +1312,245 @@ def eseif_update_many(*arguments):
     """
     for e in range(arguments[0].shape[0]):
         eseif_update_env(e, *arguments)
+
+
+# -- a planner's look-ahead (seif_gym.slam.rollout): scratch copies that are never restored ---------------------------
+@njit(cache=True, inline="always")
+def _push_unlogged(neighbour_index, neighbour_count, i, queue, queued, queue_state):
+    """:func:`_push_neighbours` without the undo log."""
+    capacity = queue.shape[0]
+    for slot in range(neighbour_count[i]):
+        j = neighbour_index[i, slot]
+        if not queued[j] and queue_state[1] < capacity:
+            queue[(queue_state[0] + queue_state[1]) % capacity] = j
+            queue_state[1] += 1
+            queued[j] = True
+
+
+@njit(cache=True, inline="always")
+def _relax_unlogged(robot_links, landmark_info, neighbour_index, neighbour_info, neighbour_count, information_vector,
+                    mean, i, relaxation, tol2, queue, queued, queue_state):  # fmt: skip
+    """:func:`_relax_logged` without the undo log, in one body (the operations of its callees, in their order)."""
+    o = 3 + 2 * i
+    r0 = information_vector[o]
+    r1 = information_vector[o + 1]
+    for b in range(3):
+        r0 -= robot_links[i, b, 0] * mean[b]
+        r1 -= robot_links[i, b, 1] * mean[b]
+    for slot in range(neighbour_count[i]):
+        oj = 3 + 2 * neighbour_index[i, slot]
+        r0 -= neighbour_info[i, slot, 0, 0] * mean[oj] + neighbour_info[i, slot, 0, 1] * mean[oj + 1]
+        r1 -= neighbour_info[i, slot, 1, 0] * mean[oj] + neighbour_info[i, slot, 1, 1] * mean[oj + 1]
+    det = landmark_info[i, 0, 0] * landmark_info[i, 1, 1] - landmark_info[i, 0, 1] * landmark_info[i, 1, 0]
+    new0 = (landmark_info[i, 1, 1] * r0 - landmark_info[i, 0, 1] * r1) / det
+    new1 = (landmark_info[i, 0, 0] * r1 - landmark_info[i, 1, 0] * r0) / det
+    d0 = relaxation * (new0 - mean[o])
+    d1 = relaxation * (new1 - mean[o + 1])
+    mean[o] += d0
+    mean[o + 1] += d1
+    if d0 * d0 + d1 * d1 > tol2:
+        _push_unlogged(neighbour_index, neighbour_count, i, queue, queued, queue_state)
+
+
+@njit(cache=True)
+def recover_mean_wavefront_unlogged(robot_info, robot_links, landmark_info, neighbour_index, neighbour_info,
+                                    neighbour_count, information_vector, mean, block_position, active, seeds, queue,
+                                    queued, queue_state, budget, relaxation, tolerance):  # fmt: skip
+    """:func:`recover_mean_wavefront` without the undo log: the same operations in the same order.
+
+    For a copy that is thrown away after use (nothing to restore); the nested calls of the logged
+    version are one body here, which is most of its speed.
+    """
+    tol2 = tolerance * tolerance
+    capacity = queue.shape[0]
+    for k in range(seeds.shape[0]):
+        _relax_unlogged(robot_links, landmark_info, neighbour_index, neighbour_info, neighbour_count,
+                        information_vector, mean, seeds[k], 1.0, tol2, queue, queued, queue_state)  # fmt: skip
+    solution = relax_robot_block(robot_info, robot_links, landmark_info, neighbour_index, neighbour_info,
+                                 neighbour_count, information_vector, mean, block_position, active)  # fmt: skip
+    for a in range(3):
+        mean[a] = solution[a]
+    for p in range(active.shape[0]):
+        i = active[p]
+        o = 3 + 2 * i
+        d0 = solution[3 + 2 * p] - mean[o]
+        d1 = solution[4 + 2 * p] - mean[o + 1]
+        mean[o] += d0
+        mean[o + 1] += d1
+        if d0 * d0 + d1 * d1 > tol2:
+            _push_unlogged(neighbour_index, neighbour_count, i, queue, queued, queue_state)
+    for _ in range(budget):
+        if queue_state[1] == 0:
+            break
+        i = queue[queue_state[0]]
+        queue[queue_state[0]] = -1
+        queue_state[0] = (queue_state[0] + 1) % capacity
+        queue_state[1] -= 1
+        queued[i] = False
+        _relax_unlogged(robot_links, landmark_info, neighbour_index, neighbour_info, neighbour_count,
+                        information_vector, mean, i, relaxation, tol2, queue, queued, queue_state)  # fmt: skip
+    relax_robot(robot_info, robot_links, information_vector, mean, active)
+
+
+@njit(cache=True)
+def seif_update_mapped(robot_info, robot_links, landmark_info, neighbour_index, neighbour_info, neighbour_count,
+                       information_vector, mean, block_position, active, counters, is_active, last_observed, queue,
+                       queued, queue_state, ranges, bearings, indices, noise_info, max_active, recovery_landmarks,
+                       budget, relaxation, tolerance):  # fmt: skip
+    """:func:`seif_update_one` of landmarks already in the map (state orders ``indices``), unlogged.
+
+    The same steps in the same order: measurement update, wavefront recovery (by
+    :func:`recover_mean_wavefront_unlogged`), heading rewrap, sparsification.
+    """
+    counters[2] += 1
+    update_count = counters[2]
+    _incorporate_one(robot_info, robot_links, landmark_info, information_vector, mean, active, counters, is_active,
+                     last_observed, indices, ranges, bearings, noise_info)  # fmt: skip
+    # _recover_one's seeds: the next passive landmarks in round robin
+    n = counters[0]
+    batch = min(recovery_landmarks, n)
+    seeds = np.empty(batch, dtype=np.int64)
+    s = 0
+    for k in range(batch):
+        j = (counters[3] + k) % n
+        if not is_active[j]:
+            seeds[s] = j
+            s += 1
+    if batch > 0:
+        counters[3] = (counters[3] + batch) % n
+    act = active[: counters[1]]
+    recover_mean_wavefront_unlogged(robot_info, robot_links, landmark_info, neighbour_index, neighbour_info,
+                                    neighbour_count, information_vector, mean, block_position, act, seeds[:s], queue,
+                                    queued, queue_state, budget, relaxation, tolerance)  # fmt: skip
+    rewrap_heading(robot_info, robot_links, information_vector, mean, act)
+    # sparsification, as in seif_update_one
+    count = counters[1]
+    act = active[:count]
+    if max_active < 0 or count <= max_active:
+        return
+    candidates = np.empty(count, dtype=np.int64)
+    c = 0
+    for p in range(count):
+        if last_observed[active[p]] != update_count:
+            candidates[c] = p
+            c += 1
+    remove_count = min(count - max_active, c)
+    if remove_count == 0:
+        return
+    order = np.argsort(last_observed[act[candidates[:c]]], kind="mergesort")
+    remove = np.zeros(count, dtype=np.bool_)
+    for r in range(remove_count):
+        remove[candidates[order[r]]] = True
+    block = np.empty(count, dtype=np.int64)
+    kept = 0
+    for p in range(count):
+        if not remove[p]:
+            block[kept] = active[p]
+            kept += 1
+    q = kept
+    for p in range(count):
+        if remove[p]:
+            block[q] = active[p]
+            q += 1
+    sparsify(robot_info, robot_links, landmark_info, neighbour_index, neighbour_info, neighbour_count,
+             information_vector, mean, block_position, block, kept)  # fmt: skip
+    for p in range(kept, count):
+        is_active[block[p]] = False
+    for p in range(kept):
+        active[p] = block[p]
+    counters[1] = kept
+
+
+@njit(cache=True)
+def rollout_step(t, start, horizon, robot_info, robot_links, landmark_info, neighbour_index, neighbour_info,
+                 neighbour_count, information_vector, mean, block_position, active, counters, is_active,
+                 last_observed, id_to_index, ids, queue, queued, queue_state, eseif_counters, controls, dt, alphas,
+                 floor, noise_info, noise_cov, eseif, max_active, relocalization_landmarks, split_weight, rcond,
+                 recovery_landmarks, budget, relaxation, tolerance, landmark_x, landmark_y, max_range, half_fov,
+                 dx, dy, angle, poses, pose_covariances, landmark_std):  # fmt: skip
+    """Step ``t`` (``0 <= t <= horizon``) of copies ``start, start + 1, ...`` of a SEIF (or ESEIF).
+
+    The copies are rows of batch arrays (:class:`~seif_gym.slam.batched.BatchedSEIF`'s layout, landmark
+    ``i``'s id ``i``). Copy ``e`` first takes the measurement update (when ``t > 0``) with what it
+    expects from its pose of step ``t - 1``: ``r = sqrt(dx^2 + dy^2)`` and ``wrap(angle - theta)`` of
+    each landmark's offsets ``dx[e]``, ``dy[e]`` from that pose (``angle`` their ``atan2``, from the
+    caller), for ``0 < r <= max_range`` and, when ``half_fov < pi``, ``|bearing| <= half_fov``; then
+    the motion update of step ``t`` with ``controls[e]`` (when ``t < horizon``: its pose goes to
+    ``poses[e, t]``, the landmarks' offsets from it to ``dx[e]``, ``dy[e]``), or, at ``t == horizon``,
+    gives its pose covariance (:func:`blanket_covariances` over its active landmarks) and
+    :func:`conditional_std`. The same kernels in the same order as ``SEIF.predict_trusted`` and
+    ``update_trusted``; the SEIF's update unlogged (:func:`seif_update_mapped`), the ESEIF's by
+    :func:`eseif_update_one`.
+
+    Returns ``(-1, 0)`` when every copy is done. Before a copy moves, its neighbour lists must have room
+    for what the two updates may add (at most ``2 (a + m)`` new neighbours for ``a`` active landmarks
+    and ``m`` measurements; a SEIF reserves room as it goes): a copy without it is returned untouched
+    with the degree it needs, ``(e, degree)``, for the caller to grow the arrays and call again from ``e``.
+    """
+    n = landmark_x.shape[0]
+    degree = neighbour_index.shape[2]
+    limited = half_fov < np.pi
+    ranges = np.empty(n)
+    bearings = np.empty(n)
+    measured = np.empty(n, dtype=np.int64)
+    delta = np.empty(3)
+    jacobian = np.empty((3, 3))
+    noise = np.empty((3, 3))
+    no_targets = np.empty(0, dtype=np.int64)
+    for e in range(start, robot_info.shape[0]):
+        m = 0
+        if t > 0:  # RangeBearingSensor.predict_trusted's operations, in its order
+            for i in range(n):
+                r = np.sqrt(dx[e, i] * dx[e, i] + dy[e, i] * dy[e, i])
+                if not (r > 0.0 and r <= max_range):
+                    continue
+                bearing = (angle[e, i] - poses[e, t - 1, 2] + np.pi) % TWO_PI - np.pi
+                if limited and not abs(bearing) <= half_fov:
+                    continue
+                ranges[m] = r
+                bearings[m] = bearing
+                measured[m] = i
+                m += 1
+        if degree < n - 1:  # a landmark never has more than n - 1 neighbours
+            most = 0
+            for i in range(n):
+                most = max(most, neighbour_count[e, i])
+            needed = most + 2 * (counters[e, 1] + m)
+            if needed > degree:
+                return e, min(needed, n - 1)
+        if t > 0:
+            if eseif:
+                eseif_update_one(robot_info[e], robot_links[e], landmark_info[e], neighbour_index[e], neighbour_info[e],
+                                 neighbour_count[e], information_vector[e], mean[e], block_position[e], active[e],
+                                 counters[e], is_active[e], last_observed[e], id_to_index[e], ids[e], queue[e],
+                                 queued[e], queue_state[e], ranges[:m], bearings[:m], measured[:m], noise_info,
+                                 noise_cov, max_active, relocalization_landmarks, split_weight, rcond,
+                                 recovery_landmarks, budget, relaxation, tolerance, eseif_counters[e])  # fmt: skip
+            else:
+                seif_update_mapped(robot_info[e], robot_links[e], landmark_info[e], neighbour_index[e],
+                                   neighbour_info[e], neighbour_count[e], information_vector[e], mean[e],
+                                   block_position[e], active[e], counters[e], is_active[e], last_observed[e],
+                                   queue[e], queued[e], queue_state[e], ranges[:m], bearings[:m], measured[:m],
+                                   noise_info, max_active, recovery_landmarks, budget, relaxation,
+                                   tolerance)  # fmt: skip
+        act = active[e, : counters[e, 1]]
+        if t < horizon:  # seif_predict_env
+            velocity_linearization(mean[e, 2], controls[e, 0], controls[e, 1], dt, alphas, floor, delta, jacobian,
+                                   noise)  # fmt: skip
+            predict(robot_info[e], robot_links[e], landmark_info[e], neighbour_index[e], neighbour_info[e],
+                    neighbour_count[e], information_vector[e], mean[e], block_position[e], act, delta, jacobian,
+                    noise)  # fmt: skip
+            rewrap_heading(robot_info[e], robot_links[e], information_vector[e], mean[e], act)
+            for a in range(3):
+                poses[e, t, a] = mean[e, a]
+            for i in range(n):
+                dx[e, i] = landmark_x[i] - mean[e, 0]
+                dy[e, i] = landmark_y[i] - mean[e, 1]
+        else:  # SEIF.local_marginals with no landmark, SEIF.landmark_std
+            nodes = blanket_nodes(act, no_targets, block_position[e])
+            pose_cov, _ = blanket_covariances(robot_info[e], robot_links[e], landmark_info[e], neighbour_index[e],
+                                              neighbour_info[e], neighbour_count[e], information_vector[e], mean[e],
+                                              block_position[e], nodes, no_targets)  # fmt: skip
+            pose_covariances[e] = pose_cov
+            landmark_std[e] = conditional_std(landmark_info[e], n)
+    return -1, 0

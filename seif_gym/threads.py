@@ -1,9 +1,8 @@
 """Threads: BLAS limits for seif_gym's command lines, and numba's threads for the batched kernels.
 
 The filters factorise small dense blocks (tens to a few hundred rows), where
-BLAS threads cost far more in synchronisation than they save: on a loaded
-2-core machine a threaded 160 × 160 Cholesky took 80 ms instead of 0.06 ms,
-and one 63 × 63 solve 40 ms instead of 0.7 ms. Environment variables such as
+BLAS threads cost far more in synchronisation than they save
+(``docs/performance_notes.md`` has figures). Environment variables such as
 ``OPENBLAS_NUM_THREADS`` act only before numpy is imported;
 :func:`limit_blas_threads` acts at any time, through ``threadpoolctl`` (the
 maintained library that finds every BLAS and OpenMP runtime a process has
@@ -39,11 +38,11 @@ def _start_numba_pool() -> None:
 
     Numba picks its threading layer when the pool starts (``NUMBA_THREADING_LAYER``; by default TBB,
     else GNU OpenMP where it finds it: torch loads it, else its own work queue). Starting it on GNU
-    OpenMP set torch's OpenMP thread count to numba's (``OMP_NUM_THREADS=1`` undone: measured, and
-    PPO's weights changed with it), so the counts are put back after the start. That layer also kills
-    a ``fork``-ed child that runs a parallel kernel ("fork() called from a process already using GNU
+    OpenMP sets torch's OpenMP thread count to numba's (undoing ``OMP_NUM_THREADS=1``, which changes
+    what torch computes), so the counts are put back after the start. That layer also kills a
+    ``fork``-ed child that runs a parallel kernel ("fork() called from a process already using GNU
     OpenMP"): ``NUMBA_THREADING_LAYER=forksafe`` picks a layer without that limit (numba's work queue
-    here, which shared 256 envs out over 2 cores 1.1x faster than one thread where OpenMP was 1.6x).
+    where TBB is absent), at some cost in speed.
     """
     global _numba_pool_started
     if _numba_pool_started:

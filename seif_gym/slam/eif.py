@@ -3,9 +3,9 @@
 The EIF keeps the information matrix ``Omega = Sigma^-1``, the information
 vector ``xi = Omega mu`` and the mean ``mu``, with no sparsification and
 exact mean recovery. It is the SEIF with an unbounded active set, and equals
-EKF SLAM to round-off (``SEIF.md``, "Exactness that tests can rely on"). Its
-motion update is derived here independently of the constant-time formulas of
-``SEIF.md`` section 1, so that it can cross-check them.
+EKF SLAM to round-off after any number of steps. Its motion update is derived
+here independently of the SEIF's constant-time formulas
+(:func:`seif_gym.slam.seif.motion_update`), so that it can cross-check them.
 
 Why ``Omega`` is stored dense
 -----------------------------
@@ -61,7 +61,7 @@ class EIF(SlamFilter, InformationForm):
     is written is symmetrized or written together with its transpose.
 
     *Motion update* as state augmentation followed by marginalization (M.
-    Walter, SLAM Summer School 2006 supplement, ``seeds/004``: "Adding New
+    Walter, SLAM Summer School 2006 supplement: "Adding New
     Features to the Map" and the time-projection figure; the extended
     information filter of Thrun, Burgard & Fox, *Probabilistic Robotics*,
     ch. 3.5, Table 3.6, for the linearization). With ``(delta, G, R) = motion.linearize(mu_x, u, dt)`` the new pose is
@@ -84,9 +84,10 @@ class EIF(SlamFilter, InformationForm):
     consistent with the wrapped heading (a component of ``xi`` is never
     wrapped). This is the same Gaussian as the EKF's ``G Sigma_xx G^T + R``,
     ``G Sigma_xm``, and is used to cross-check the constant-time formulas of
-    ``SEIF.md`` section 1 (``Psi``, ``lambda``, ``kappa``). Cost O(n^2).
+    :func:`seif_gym.slam.seif.motion_update` (``Psi``, ``lambda``, ``kappa``).
+    Cost O(n^2).
 
-    *Measurement update* (Thrun Table 12.3; ``SEIF.md`` section 2). A new
+    *Measurement update* (Thrun Table 12.3). A new
     landmark gets zero rows and columns of information and the mean
     ``sensor.inverse(mu_x, z)``. Then, with every ``H_i`` linearized at
     ``mu_bar``,
@@ -96,7 +97,7 @@ class EIF(SlamFilter, InformationForm):
               (\mathrm{wrap}(z_i - \hat z_i) + H_i \bar\mu).
 
     *Mean recovery* is exact: ``mu = Omega^-1 xi`` by a Cholesky factorization
-    of ``Omega`` (``SEIF.md`` section 4, "exact recovery"), computed as the
+    of ``Omega``, computed as the
     correction ``mu = mu_bar + Omega^-1 (xi - Omega mu_bar)`` so that the
     round-off of the solve scales with the (small) correction rather than
     with ``mu``. If wrapping ``mu_theta`` changes it, ``xi = Omega mu`` is

@@ -6,7 +6,7 @@ the robot rows and columns of ``Sigma`` change), a measurement step O(n^2)
 (every entry of ``Sigma`` changes). It is the reference the information
 filters are checked against: with the update order used here, the EKF equals
 the exact extended information filter (:class:`~seif_gym.slam.eif.EIF`) to
-round-off (``SEIF.md``, "Exactness that tests can rely on").
+round-off after any number of steps.
 """
 
 from __future__ import annotations
@@ -38,8 +38,8 @@ class EKF(SlamFilter):
     doubling) rather than a copy per landmark.
 
     *Motion update* (Thrun, Burgard & Fox, *Probabilistic Robotics*, Table
-    10.1 "EKF SLAM with known correspondences", lines 2-5; ``SEIF.md``,
-    "Velocity motion model"): with
+    10.1 "EKF SLAM with known correspondences", lines 2-5; the velocity
+    motion model of :class:`~seif_gym.slam.models.VelocityMotionModel`): with
     ``(delta, G, R) = motion.linearize(mu_x, u, dt)``,
 
     .. math:: \mu_x \leftarrow \mu_x + \delta, \quad
@@ -51,7 +51,7 @@ class EKF(SlamFilter):
     *Measurement update* (Thrun Table 10.1, the rest of it, with two changes:
     a new landmark's covariance is initialized from the inverse sensor model
     instead of a huge prior, and the known landmarks are applied as one batch;
-    ``SEIF.md``, "Range-bearing sensor"):
+    the sensor model of :class:`~seif_gym.slam.models.RangeBearingSensor`):
 
     1. Each landmark seen for the first time is added from its own measurement
        with the inverse sensor model ``m = h^-1(x, z)`` and its Jacobians
@@ -68,8 +68,8 @@ class EKF(SlamFilter):
        ``Sigma -= K S K^T`` (formed as ``K (Sigma H^T)^T``) and symmetrized.
 
     Step 1 is exactly the information-form update with zero prior information
-    on the new landmark (``SEIF.md``: "initialised ... with zero information of
-    its own; the measurement supplies it"), and step 2 adds all other
+    on the new landmark (the information filters initialise it with zero
+    information of its own; the measurement supplies it), and step 2 adds all other
     measurement information at the same linearization point, so the EKF and
     the EIF are the same linear-Gaussian update and agree to round-off.
 

@@ -3,19 +3,19 @@
 The SEIF (:mod:`seif_gym.slam.seif`) bounds the robot's links by
 *approximating* the posterior: its sparsification step enforces a conditional
 independence that the posterior does not have, and the result can hold more
-information than the data give (``seeds/003``, appendix A.1: the filter
-becomes overconfident). The ESEIF bounds the same links without any
+information than the data give (the filter becomes overconfident; Eustice,
+Walter & Leonard, IROS 2005). The ESEIF bounds the same links without any
 approximation of the information it keeps. When the active set would grow
 past its bound ``k`` it *sparsifies by relocalization*:
 
 1. split the scan's measurements into ``z_alpha`` and ``z_beta``, where
    ``z_beta`` are a few measurements of landmarks mapped before this scan
    (:func:`select_relocalization_landmarks`);
-2. incorporate ``z_alpha`` as usual (``SEIF.md`` section 2);
+2. incorporate ``z_alpha`` as usual (:func:`seif_gym.slam.seif.measurement_update`);
 3. marginalize the robot pose out (:func:`marginalize_robot`): exact, it only
    links the landmarks that were linked to the robot to one another;
 4. start a new robot pose with no prior information and add the measurement
-   factors of ``z_beta`` to it (the same equations as ``SEIF.md`` section 2
+   factors of ``z_beta`` to it (the equations of the measurement update
    applied to the marginalized matrix). The new pose is linked to the
    ``z_beta`` landmarks only.
 
@@ -209,8 +209,10 @@ class ESEIF(SEIF):
     robot), ``O`` the landmarks of the scan and ``K`` those of ``O`` mapped
     before this scan.
 
-    *Ordinary update*, when ``|Gamma u O| <= k``: ``SEIF.md`` section 2 with
-    all measurements, ``Gamma <- Gamma u O``, then mean recovery.
+    *Ordinary update*, when ``|Gamma u O| <= k``: the SEIF's measurement
+    update (:func:`seif_gym.slam.seif.measurement_update`, Probabilistic
+    Robotics Table 12.3) with all measurements, ``Gamma <- Gamma u O``, then
+    mean recovery.
 
     *Sparsification by relocalization*, when ``|Gamma u O| > k``:
 
@@ -218,7 +220,7 @@ class ESEIF(SEIF):
         maximizing ``det sum J_i`` (:func:`select_relocalization_landmarks`);
         ``z_alpha`` is the rest of the scan, including every landmark new to
         the map (it needs the robot link to be initialised).
-    (b) Incorporate ``z_alpha`` (``SEIF.md`` section 2, linearized at the
+    (b) Incorporate ``z_alpha`` (the measurement update, linearized at the
         current mean)::
 
             Omega <- Omega + sum_alpha H_i^T Q^-1 H_i

@@ -85,7 +85,7 @@ class PerSecondVelocityMotionModel:
     Notes
     -----
     The kinematics are those of :class:`~seif_gym.slam.models.VelocityMotionModel`
-    (``SEIF.md``, "Velocity motion model"): the pose moves along the arc
+    (Thrun Table 5.3): the pose moves along the arc
     ``delta(theta, v, omega, dt)`` with Jacobians ``G = I + Delta`` and
     ``V = d delta / d(v, omega)`` (Thrun eq. 7.11). The executed controls are
     the commanded ones plus *white* noise of densities ``q_v``, ``q_w``

@@ -1,18 +1,23 @@
 """The Sparse Extended Information Filter (Thrun et al., *Probabilistic Robotics*, ch. 12).
 
-Each of the four SEIF steps of ``SEIF.md`` has one function here, written as
+Each of the four SEIF steps has one function here, written as
 plainly as the equations, over a dense *block* of the information matrix:
 the robot and the landmarks the step touches (its active landmarks, or the
 ones it observes). The block is gathered from and scattered back to an
 :class:`~seif_gym.slam.information.InformationStore`, so every step costs time
 in the size of the active set, never in the size of the map:
 
-1. :func:`motion_update`        ``SEIF.md`` section 1
-2. :func:`measurement_update`   ``SEIF.md`` section 2
-3. :func:`sparsify`             ``SEIF.md`` section 3
-4. :func:`recover_mean_wavefront` ``SEIF.md`` section 4, the default amortized
-   recovery (and Thrun's round robin :func:`recover_mean_amortized`, and
-   :func:`recover_mean_exact`)
+1. :func:`motion_update`          (Probabilistic Robotics, Table 12.2)
+2. :func:`measurement_update`     (Table 12.3)
+3. :func:`sparsify`               (Table 12.4)
+4. :func:`recover_mean_wavefront` (the block step of Table 12.5), the default
+   amortized recovery (and Thrun's round robin :func:`recover_mean_amortized`,
+   and :func:`recover_mean_exact`)
+
+With no sparsification (``max_active=None``) and exact mean recovery the SEIF
+is the exact extended information filter, and both equal EKF SLAM to
+round-off after any number of steps; sparsification keeps the mean at the step
+where it is applied.
 
 An update either completes or leaves the filter bit-identical: each stage
 saves what it is about to change in a :class:`UpdateJournal` first, and a
@@ -91,7 +96,7 @@ def motion_update(
 
     Notes
     -----
-    ``SEIF.md`` section 1 (Thrun Table 12.2)::
+    Thrun, Burgard & Fox, *Probabilistic Robotics*, Table 12.2::
 
         Psi   = F_x^T [(I + Delta)^-1 - I] F_x
         lam   = Psi^T Omega + Omega Psi + Psi^T Omega Psi
@@ -133,7 +138,7 @@ def measurement_update(
 
     Notes
     -----
-    ``SEIF.md`` section 2 (Thrun Table 12.3), linearised at ``mu``::
+    Probabilistic Robotics, Table 12.3, linearised at ``mu``::
 
         Omega = Omega_bar + sum_i H_i^T Q^-1 H_i
         xi    = xi_bar    + sum_i H_i^T Q^-1 [wrap(z_i - z_hat_i) + H_i mu_bar]
@@ -176,7 +181,7 @@ def sparsify(omega: FloatArray, xi: FloatArray, mu: FloatArray, num_kept: int) -
 
     Notes
     -----
-    ``SEIF.md`` section 3 (Thrun Table 12.4), with ``Omega^0`` the block
+    Probabilistic Robotics, Table 12.4, with ``Omega^0`` the block
     itself (conditioning on ``m- = 0`` removes only rows outside it)::
 
         Omega~ = Omega - Omega0 F_m0 (F_m0^T Omega0 F_m0)^-1 F_m0^T Omega0
@@ -215,7 +220,7 @@ def recover_mean_amortized(store: InformationStore, landmarks: IntArray, active:
 
     Notes
     -----
-    ``SEIF.md`` section 4 (Thrun Table 12.5)::
+    Probabilistic Robotics, Table 12.5::
 
         mu_i = Omega_ii^-1 (xi_i - sum_{j != i} Omega_ij mu_j)
     """
@@ -233,7 +238,7 @@ def recover_mean_amortized(store: InformationStore, landmarks: IntArray, active:
     mean[:3] = np.linalg.solve(store.robot_info, rhs)
 
 
-#: Up to this many landmarks, exact marginals factorise the dense ``Omega`` (faster than a sparse LU there).
+#: Up to this many landmarks, exact marginals factorise the dense ``Omega`` (a sparse LU's fixed overhead dominates there).
 DENSE_MARGINALS_UP_TO = 60
 
 
@@ -241,10 +246,9 @@ def exact_marginal_covariance(store: InformationStore, state_indices: IntArray,
                               dense_up_to: int = DENSE_MARGINALS_UP_TO) -> FloatArray:  # fmt: skip
     """Exact marginal covariance ``[Omega^-1]`` over ``state_indices``: a global solve, never constant time.
 
-    Up to ``dense_up_to`` landmarks, a dense Cholesky of
-    ``Omega`` gathered by a compiled kernel (O(n^3), at most a 123 x 123
-    matrix: 20-40 us at 30-50 landmarks, where the sparse LU's fixed
-    overhead costs 300-450 us); above, a sparse LU (O(n) to O(n^1.5)).
+    Up to ``dense_up_to`` landmarks, a dense Cholesky of ``Omega`` gathered
+    by a compiled kernel (O(n^3), at most a ``(3 + 2 dense_up_to)``-square
+    matrix); above, a sparse LU (O(n) to O(n^1.5)).
     Per-step callers (the env's ``info["pose_nees"]``, single or batched) pay
     this; the filter's own steps never call it. ``tests/test_seif.py`` checks
     both paths against the inverse of the dense matrix.
@@ -329,7 +333,7 @@ def recover_mean_wavefront(
 
     Notes
     -----
-    ``SEIF.md`` section 4: the same block step as Thrun's amortized recovery,
+    The same block step as Thrun's amortized recovery (Table 12.5),
     over-relaxed (block SOR, ``0 < relaxation < 2``)::
 
         mu_i <- mu_i + w [ Omega_ii^-1 (xi_i - sum_{j != i} Omega_ij mu_j) - mu_i ]
@@ -518,7 +522,7 @@ class UpdateJournal:
 
 
 def recover_mean_exact(store: InformationStore) -> None:
-    """``mu = Omega^-1 xi`` by a sparse factorisation (``SEIF.md`` section 4, exact).
+    """``mu = Omega^-1 xi`` by a sparse factorisation (exact recovery).
 
     Costs O(n) to O(n^1.5) for the graphs of SLAM; the evaluation and the tests
     use it as ground truth, and ``mean_recovery="exact"`` runs it every step.
@@ -734,10 +738,10 @@ class SEIF(SlamFilter, SparseInformationForm):
     -----
     One ``predict`` is the motion update; one ``update`` is the measurement
     update, then mean recovery, then sparsification (which keeps the
-    mean). See ``SEIF.md`` for the equations and the module functions for
-    each step. A step that fails at any stage (for example a block that is
-    not positive definite) raises and leaves the filter bit-identical
-    (:class:`UpdateJournal`).
+    mean). The module functions give the equation of each step
+    (Probabilistic Robotics, Tables 12.2-12.5). A step that fails at any
+    stage (for example a block that is not positive definite) raises and
+    leaves the filter bit-identical (:class:`UpdateJournal`).
     """
 
     OPTIONS: ClassVar[dict[str, Any]] = {
@@ -905,7 +909,7 @@ class SEIF(SlamFilter, SparseInformationForm):
     def _add_landmarks(self, ranges: FloatArray, bearings: FloatArray) -> None:
         """Append new landmarks at the inverse sensor model's positions, with zero information.
 
-        The measurement that follows supplies their information (``SEIF.md``, sensor).
+        The measurement that follows supplies their information (:meth:`~seif_gym.slam.models.RangeBearingSensor.inverse`).
         """
         store = self._store
         inverse = getattr(self.sensor, "inverse_trusted", self.sensor.inverse)
@@ -917,7 +921,7 @@ class SEIF(SlamFilter, SparseInformationForm):
         self._queue.grow(store.capacity)
 
     def _incorporate(self, ranges: FloatArray, bearings: FloatArray, indices: IntArray, weight: float = 1.0) -> None:
-        """``SEIF.md`` section 2 with these measurements; their landmarks become active.
+        """:func:`measurement_update` with these measurements; their landmarks become active.
 
         ``weight`` scales the measurement information ``Q^-1`` (the ESEIF's
         split relocalization uses one measurement twice, with weights that sum to 1).
@@ -967,7 +971,7 @@ class SEIF(SlamFilter, SparseInformationForm):
         return batch[~self._is_active[batch]]
 
     def _sparsify(self) -> None:
-        """``SEIF.md`` section 3: deactivate the landmarks observed longest ago until ``k`` remain."""
+        """:func:`sparsify`: deactivate the landmarks observed longest ago until ``k`` remain."""
         if self.max_active is None or len(self._active) <= self.max_active:
             return
         # the landmarks observed longest ago go first, never one observed in this update

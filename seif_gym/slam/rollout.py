@@ -3,10 +3,11 @@
 For each of ``c`` constant controls ``u_k``, a copy of the filter is advanced
 ``horizon`` steps; each step is
 
-1. the motion update with ``u_k`` for ``dt`` seconds (``SEIF.md`` section 1);
+1. the motion update with ``u_k`` for ``dt`` seconds (:func:`~seif_gym.slam.seif.motion_update`);
    the pose estimate after it is ``poses[k, t]``;
-2. the measurement update (sections 2-4: measurement update, mean recovery,
-   sparsification) with the noise-free measurements the sensor model predicts,
+2. the update (measurement update, mean recovery, sparsification, as
+   :meth:`SEIF.update <seif_gym.slam.seif.SEIF.update>` runs them) with the
+   noise-free measurements the sensor model predicts,
    ``z_i = (|m_i - p|, wrap(atan2(m_iy - p_y, m_ix - p_x) - p_theta))``
    (:meth:`RangeBearingSensor.predict_trusted
    <seif_gym.slam.models.RangeBearingSensor.predict_trusted>`), from the

@@ -33,7 +33,7 @@ the sensor's range and field of view): the observation is normalised by the
 arena's size, so reading ``SeifExploreLarge``'s with another env's numbers
 would misplace everything. The observation-only agents read nothing else of
 the env (:data:`GEOMETRY_READS`). ``info_gain`` keeps a reference to
-``env.unwrapped`` and also reads its ``filter`` (deep-copied for the
+``env.unwrapped`` and also reads its ``filter`` (its arrays copied for the
 rollouts) and ``motion`` (:data:`INFO_GAIN_READS`) -- never ``world``.
 
 Observation geometry (see ``seif_gym.observation``): ``obs["pose"]`` is

@@ -4,7 +4,7 @@ Usage::
 
     python -m agents.benchmark [--tasks SeifExplore,SeifExploreLoop-v2,...] [--version 2]
         [--episodes N] [--seed 1000000] [--agents ...] [--jobs 2 | --workers 16 | --ray auto]
-        [--out benchmark] [--quiet]
+        [--no-batch] [--batch-size 100] [--threads 1] [--out benchmark] [--quiet]
 
 A task is a registered env id, or a family (``SeifExploreLoop``) for its
 ``--version`` (default: the family's newest); without ``--tasks``, every
@@ -18,7 +18,10 @@ through :func:`agents.evaluate.evaluate_agents`. For each task the agents are
 compared with the best baseline (the baseline of lowest mean final map error)
 by the paired per-seed difference of their final map errors, with a 95 %
 Student-t interval; an agent *beats* the best baseline only when that interval
-lies below zero (:func:`agents.evaluate.paired_comparison`).
+lies below zero (:func:`agents.evaluate.paired_comparison`). ``--no-batch``,
+``--batch-size`` and ``--threads`` are :func:`agents.evaluate.evaluate_agents`'
+(the episodes run batched where they can, on one thread per process by
+default; the rows are the same either way).
 
 ``--agents`` takes what ``agents.evaluate`` takes (default: the baselines and
 the shipped exploration policies, :data:`EXPLORERS`). A saved model (a shipped
@@ -55,7 +58,8 @@ import gymnasium as gym
 import seif_gym
 from agents.baselines import BASELINES
 from agents.cli import add_deprecated_alias, agents_help, resolve_tasks, tasks_epilog
-from agents.evaluate import evaluate_agents, write_outputs
+from agents.evaluate import DEFAULT_BATCH_SIZE, evaluate_agents, limited_threads, write_outputs
+from agents.evaluate.cli import add_batch_arguments, check_batch_arguments
 from agents.loading import SHIPPED_POLICIES, ShippedPolicy, agent_label, check_agent_spec
 from agents.memories import policy_view
 from agents.parallel import Executor
@@ -154,7 +158,8 @@ def policy_fits(policy: ShippedPolicy | str | os.PathLike, env_id: str) -> bool:
 
 
 def benchmark_variant(env_id: str, agents: Sequence[str], episodes: int, seed: int, out: Path,
-                      verbose: bool = False, executor: Executor | None = None) -> list[dict[str, Any]]:  # fmt: skip
+                      verbose: bool = False, executor: Executor | None = None, batch: bool = True,
+                      batch_size: int = DEFAULT_BATCH_SIZE, threads: int = 1) -> list[dict[str, Any]]:  # fmt: skip
     """Run ``agents`` on the task ``env_id`` and write its files; the task's leaderboard rows.
 
     Parameters
@@ -172,6 +177,8 @@ def benchmark_variant(env_id: str, agents: Sequence[str], episodes: int, seed: i
         Progress on stderr.
     executor : agents.parallel.Executor, optional
         Runs the task's episodes (default: this process).
+    batch, batch_size, threads
+        As :func:`agents.evaluate.evaluate_agents` takes them.
 
     Returns
     -------
@@ -195,9 +202,8 @@ def benchmark_variant(env_id: str, agents: Sequence[str], episodes: int, seed: i
         specs.append(f"{label}={model.path if isinstance(model, ShippedPolicy) else target}")
         kinds[label] = "policy"
     started = time.perf_counter()
-    rows, summary = evaluate_agents(
-        specs, episodes=episodes, seed=seed, env_id=env_id, env_kwargs={}, verbose=verbose, executor=executor
-    )
+    rows, summary = evaluate_agents(specs, episodes=episodes, seed=seed, env_id=env_id, env_kwargs={}, verbose=verbose,
+                                    executor=executor, batch=batch, batch_size=batch_size, threads=threads)  # fmt: skip
     write_outputs(rows, summary, out / env_id)
     if verbose:
         print(f"{env_id}: {len(specs)} agents x {episodes} episodes in {time.perf_counter() - started:.0f} s"
@@ -228,7 +234,8 @@ def benchmark_variant(env_id: str, agents: Sequence[str], episodes: int, seed: i
 
 
 def run_benchmark(variants: Sequence[str], agents: Sequence[str], episodes: int | None, seed: int, out: str | Path,
-                  jobs: int = 1, verbose: bool = False, executor: Executor | None = None) -> list[dict[str, Any]]:  # fmt: skip
+                  jobs: int = 1, verbose: bool = False, executor: Executor | None = None, *, batch: bool = True,
+                  batch_size: int = DEFAULT_BATCH_SIZE, threads: int = 1) -> list[dict[str, Any]]:  # fmt: skip
     """Every agent on every task; writes the leaderboard files.
 
     Parameters
@@ -250,6 +257,8 @@ def run_benchmark(variants: Sequence[str], agents: Sequence[str], episodes: int 
     executor : agents.parallel.Executor, optional
         Local processes or a Ray cluster that run the tasks one after another, each task's episodes
         spread over all of its slots; excludes ``jobs`` > 1. Every way gives the rows of one process.
+    batch, batch_size, threads
+        As :func:`agents.evaluate.evaluate_agents` takes them.
 
     Returns
     -------
@@ -292,9 +301,11 @@ def run_benchmark(variants: Sequence[str], agents: Sequence[str], episodes: int 
         counts = dict.fromkeys(counts, int(episodes))
     folder = Path(out)
     folder.mkdir(parents=True, exist_ok=True)
-    work = [(env_id, list(agents), counts[env_id], int(seed), folder, verbose) for env_id in variants]
+    work = [(env_id, list(agents), counts[env_id], int(seed), folder, verbose, None, batch, batch_size, threads)
+            for env_id in variants]  # fmt: skip
     if executor is not None and executor.kind != "serial":
-        tables = [benchmark_variant(*task, executor=executor) for task in work]  # a variant's episodes at once
+        # a variant's episodes at once
+        tables = [benchmark_variant(*task[:6], executor, *task[7:]) for task in work]
     else:
         tables = Executor(workers=int(jobs)).map(benchmark_variant, work)  # one variant per task
     rows = [row for table in tables for row in table]
@@ -370,6 +381,7 @@ def _parser() -> argparse.ArgumentParser:
     parser.add_argument("--jobs", type=int, default=1, help="worker processes, one task each")
     parser.add_argument("--out", default="benchmark", help="output folder (default %(default)s)")
     parser.add_argument("--quiet", action="store_true", help="no progress on stderr")
+    add_batch_arguments(parser)
     add_executor_arguments(parser)  # --workers / --ray: each task's episodes spread over them
     return parser
 
@@ -384,6 +396,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     """
     parser = _parser()
     args = parser.parse_args(argv)
+    check_batch_arguments(args, parser)
     executor = executor_from_arguments(args, parser)
     names = [name.strip() for name in args.tasks.split(",") if name.strip()]
     try:
@@ -393,8 +406,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         agents = [name.strip() for name in args.agents.split(",") if name.strip()]
         started = time.perf_counter()
-        run_benchmark(variants, agents, args.episodes, args.seed, args.out, jobs=args.jobs, verbose=not args.quiet,
-                      executor=executor)  # fmt: skip
+        with limited_threads(args.threads):
+            run_benchmark(variants, agents, args.episodes, args.seed, args.out, jobs=args.jobs, verbose=not args.quiet,
+                          executor=executor, batch=not args.no_batch, batch_size=args.batch_size,
+                          threads=args.threads)  # fmt: skip
     except (ValueError, FileNotFoundError) as error:
         parser.error(str(error))
     print((Path(args.out) / "leaderboard.md").read_text())

@@ -3,7 +3,7 @@
 Usage::
 
     python -m agents.showcase [--policy ppo] [--env SeifExplore-v2] [--episodes N] [--seed 1000000]
-        [--out showcase] [--bootstrap N] [--quiet]
+        [--out showcase] [--bootstrap N] [--no-batch] [--batch-size 100] [--threads 1] [--quiet]
 
 Runs :func:`agents.evaluate.evaluate_agents` for ``random``, ``frontier``,
 ``revisit``, ``info_gain`` and ``--policy`` (a shipped policy's name, default
@@ -17,7 +17,10 @@ interval, :func:`agents.evaluate.paired_comparison`; the policy *beats* the
 best baseline only when that interval lies below zero), writes
 ``results.csv``, ``summary.json``, ``summary.md`` and ``map_error.png`` to
 ``--out``, and records one episode of the policy as ``episode.gif``.
-Progress goes to stderr (``--quiet``: none).
+Progress goes to stderr (``--quiet``: none). ``--no-batch``, ``--batch-size``
+and ``--threads`` are :func:`agents.evaluate.evaluate_agents`' (the episodes
+run batched where they can, on one thread per process by default; the rows
+are the same either way).
 """
 
 from __future__ import annotations
@@ -34,7 +37,8 @@ import numpy as np
 import seif_gym  # noqa: F401  (registers the envs)
 from agents.baselines import BASELINES
 from agents.cli import task, tasks_epilog
-from agents.evaluate import evaluate_agents, markdown_table, paired_table, write_outputs
+from agents.evaluate import evaluate_agents, limited_threads, markdown_table, paired_table, write_outputs
+from agents.evaluate.cli import add_batch_arguments, check_batch_arguments
 from agents.loading import SHIPPED_POLICIES
 from agents.protocol import HELD_OUT_SEED, held_out_episodes
 from agents.sb3_agent import SB3Agent
@@ -50,7 +54,7 @@ ENV_ID = LATEST_ID
 
 
 def record_gif(policy_path: Path, path: Path, seed: int, every: int = 4, size: int = 400, env_id: str = ENV_ID,
-               *, verbose: bool = False) -> Path:  # fmt: skip
+               *, verbose: bool = False, threads: int | None = 1) -> Path:  # fmt: skip
     """One episode of a saved policy on ``env_id`` as an animated GIF, deterministic actions.
 
     Parameters
@@ -70,6 +74,8 @@ def record_gif(policy_path: Path, path: Path, seed: int, every: int = 4, size: i
         A registered env id.
     verbose : bool
         A progress bar over the episode's steps on stderr.
+    threads : int or None
+        Torch threads of the policy's forward passes (:class:`~agents.sb3_agent.SB3Agent`'s).
 
     Returns
     -------
@@ -79,7 +85,7 @@ def record_gif(policy_path: Path, path: Path, seed: int, every: int = 4, size: i
     from PIL import Image
 
     env = gym.make(env_id, render_mode="rgb_array")
-    agent = SB3Agent(policy_path, env=env)
+    agent = SB3Agent(policy_path, env=env, threads=threads)
     observation, _ = env.reset(seed=seed)
     frames: list[Any] = [env.render()]
     done, step = False, 0
@@ -159,6 +165,7 @@ def main(argv: Sequence[str] | None = None) -> None:
     parser.add_argument("--bootstrap", type=int, default=0, metavar="N",
                         help="also a percentile bootstrap interval of the paired differences, N resamples")  # fmt: skip
     parser.add_argument("--quiet", action="store_true", help="no progress on stderr")
+    add_batch_arguments(parser)
     args = parser.parse_args(argv)
     if args.episodes is None:
         try:
@@ -169,6 +176,7 @@ def main(argv: Sequence[str] | None = None) -> None:
         parser.error(f"--episodes must be positive, got {args.episodes}")
     if args.bootstrap < 0:
         parser.error(f"--bootstrap must be >= 0, got {args.bootstrap}")
+    check_batch_arguments(args, parser)
     policy = SHIPPED_POLICIES[args.policy].path if args.policy in SHIPPED_POLICIES else Path(args.policy)
     if not policy.is_file():
         parser.error(f"--policy: {args.policy!r} is neither a shipped policy ({', '.join(SHIPPED_POLICIES)}) "
@@ -179,17 +187,20 @@ def main(argv: Sequence[str] | None = None) -> None:
     label = args.policy if args.policy in SHIPPED_POLICIES else None
     specs = [*BASELINES, str(policy) if label is None else f"{label}={policy}"]
     started = time.perf_counter()
-    rows, summary = evaluate_agents(specs, episodes=args.episodes, seed=args.seed, env_id=args.env, env_kwargs={},
-                                    verbose=not args.quiet, bootstrap=args.bootstrap)  # fmt: skip
-    write_outputs(rows, summary, out)
-    print(f"{args.env}, {args.episodes} episodes per agent on seeds {args.seed}..{args.seed + args.episodes - 1} "
-          f"({time.perf_counter() - started:.0f} s); mean ± 95% CI half-width\n")  # fmt: skip
-    print(markdown_table(summary))
-    paired = paired_table(summary)
-    if paired:
-        print(f"\n{paired}")
-    print(f"\n{verdict_sentence(summary, list(summary['agents'])[-1])}")
-    gif = record_gif(policy, out / "episode.gif", seed=args.seed, env_id=args.env, verbose=not args.quiet)
+    with limited_threads(args.threads):
+        rows, summary = evaluate_agents(specs, episodes=args.episodes, seed=args.seed, env_id=args.env, env_kwargs={},
+                                        verbose=not args.quiet, bootstrap=args.bootstrap, batch=not args.no_batch,
+                                        batch_size=args.batch_size, threads=args.threads)  # fmt: skip
+        write_outputs(rows, summary, out)
+        print(f"{args.env}, {args.episodes} episodes per agent on seeds {args.seed}..{args.seed + args.episodes - 1} "
+              f"({time.perf_counter() - started:.0f} s); mean ± 95% CI half-width\n")  # fmt: skip
+        print(markdown_table(summary))
+        paired = paired_table(summary)
+        if paired:
+            print(f"\n{paired}")
+        print(f"\n{verdict_sentence(summary, list(summary['agents'])[-1])}")
+        gif = record_gif(policy, out / "episode.gif", seed=args.seed, env_id=args.env, verbose=not args.quiet,
+                         threads=args.threads)  # fmt: skip
     print(f"\nwrote {', '.join(str(out / name) for name in ('results.csv', 'summary.json', 'summary.md', 'map_error.png'))} "
           f"and {gif}")  # fmt: skip
 

@@ -4,7 +4,8 @@ r"""Compare agents on the same seeds: ``python -m agents.evaluate``.
 
     python -m agents.evaluate --agents random,frontier,revisit,info_gain,runs/ppo/model.zip \
         --episodes 10 --seed 1000 [--env SeifExplore-v2] [--env-kwargs '{"layout": "loop"}'] [--out DIR] \
-        [--bootstrap 10000] [--workers N | --ray auto|ADDRESS] [--quiet]
+        [--bootstrap 10000] [--workers N | --ray auto|ADDRESS] [--no-batch] [--batch-size 100] [--threads 1] \
+        [--quiet]
 
 Every agent runs ``N`` episodes on the seeds ``S, S+1, …, S+N−1`` of the task
 ``--env`` (an env id, or a family for its newest version; the same seeds for
@@ -18,13 +19,27 @@ with it is applied; labelled by the file's stem, or by its folder's name for
 ``model.zip`` / ``best_model.zip``) or ``rllib:CHECKPOINT``; any of them may
 be labelled ``LABEL=SPEC``. Every agent acts with ``deterministic=True``.
 ``--env-kwargs`` is a JSON object passed to ``gym.make`` (it may hold
-``max_episode_steps``). The episodes run one after another in this process,
-on ``--workers N`` local processes or as Ray tasks on a cluster (``--ray``;
-:mod:`agents.parallel`, ``docs/training/ray.md``), with the same rows but for
-the measured ``decision_time_ms``.
+``max_episode_steps``). The episodes run in this process, on ``--workers N``
+local processes or as Ray tasks on a cluster (``--ray``; :mod:`agents.parallel`,
+``docs/training/ray.md``), with the same rows but for the measured
+``decision_time_ms``.
+
+An agent's episodes run as the sub-envs of one native vector env
+(:class:`~seif_gym.envs.vector.SeifExploreVectorEnv`, ``--batch-size`` of them
+at most), each from ``reset(seed=s)``, and the agent acts for all of them in
+one call: a saved policy's forward pass is batched with each row's bits those
+of that row alone (:meth:`~agents.sb3_agent.SB3Agent.exact_batches`), so the
+rows equal those of one episode at a time (``--no-batch``).
+:mod:`~agents.evaluate.batched` says which agents and tasks run so; the others
+(``random``, ``info_gain``, RLlib checkpoints; the ``-v0`` tasks and other
+configurations the vector env runs as single envs) run one episode at a time,
+and the progress says so once. Each process computes on ``--threads`` BLAS and
+torch threads (default one: a small network's forward pass gains nothing from
+more, and loses much when other processes want the cores).
 
 The package's modules: :mod:`~agents.evaluate.rollout` (running the
-episodes), :mod:`~agents.evaluate.statistics` (intervals and paired
+episodes), :mod:`~agents.evaluate.batched` (running them batched),
+:mod:`~agents.evaluate.statistics` (intervals and paired
 differences), :mod:`~agents.evaluate.report` (tables, plot, files, stored
 runs), :mod:`~agents.evaluate.schema` (the names below) and
 :mod:`~agents.evaluate.cli` (the command line). Every public name of them is
@@ -54,7 +69,9 @@ the evaluation, never by the agents). Written to ``--out`` (default
     ``length``           steps of the episode
     ``wall_contacts``    steps with ``info["wall_contact"]``
     ``diverged``         1 if the episode ended by divergence, else 0
-    ``decision_time_ms`` mean wall time of one ``predict`` call, milliseconds
+    ``decision_time_ms`` mean wall time of one decision, milliseconds: of one
+                         ``predict`` call, or of a batched call divided by
+                         the sub-envs it acted for
     ==================== ==========================================================
 
 ``summary.json``
@@ -105,6 +122,7 @@ From Python: :func:`evaluate_agents` returns ``(rows, summary)`` as above,
 
 from __future__ import annotations
 
+from agents.evaluate.batched import BATCHED_BASELINES, batch_env, batch_refusal, run_batched_episodes
 from agents.evaluate.cli import main
 from agents.evaluate.report import (
     load_stored_run,
@@ -116,7 +134,15 @@ from agents.evaluate.report import (
     signed_interval,
     write_outputs,
 )
-from agents.evaluate.rollout import build_agent, evaluate_agents, make_evaluation_env, run_episode, without_exact_nees
+from agents.evaluate.rollout import (
+    DEFAULT_BATCH_SIZE,
+    build_agent,
+    evaluate_agents,
+    limited_threads,
+    make_evaluation_env,
+    run_episode,
+    without_exact_nees,
+)
 from agents.evaluate.schema import (
     AGENT_KEYS,
     CURVE_KEYS,
@@ -173,6 +199,12 @@ __all__ = [
     "make_evaluation_env",
     "without_exact_nees",
     "run_episode",
+    "DEFAULT_BATCH_SIZE",
+    "BATCHED_BASELINES",
+    "batch_env",
+    "batch_refusal",
+    "run_batched_episodes",
+    "limited_threads",
     "mean_ci",
     "mean_curve",
     "paired_difference",

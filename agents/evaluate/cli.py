@@ -8,13 +8,13 @@ from collections.abc import Sequence
 
 from agents.cli import agents_help, json_object, task, tasks_epilog
 from agents.evaluate.report import load_stored_run, markdown_table, paired_table, write_outputs
-from agents.evaluate.rollout import evaluate_agents
+from agents.evaluate.rollout import DEFAULT_BATCH_SIZE, evaluate_agents
 from agents.loading import agent_labels, check_agent_spec
 from agents.parallel import add_arguments as add_executor_arguments
 from agents.parallel import from_arguments as executor_from_arguments
 from seif_gym import LATEST_ID
 
-__all__ = ["main"]
+__all__ = ["add_batch_arguments", "check_batch_arguments", "main"]
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -43,8 +43,30 @@ def _parser() -> argparse.ArgumentParser:
         "join this run's without running again (e.g. the baselines' held-out episodes)",
     )
     parser.add_argument("--quiet", action="store_true", help="no progress on stderr")
+    add_batch_arguments(parser)
     add_executor_arguments(parser)
     return parser
+
+
+def add_batch_arguments(parser: argparse.ArgumentParser) -> None:
+    """Add ``--no-batch``, ``--batch-size`` and ``--threads`` (:func:`~agents.evaluate.evaluate_agents`'s)."""
+    parser.add_argument("--no-batch", action="store_true",
+                        help="run every agent one episode at a time in a single env (the rows are the same; "
+                        "by default the episodes run as the sub-envs of native vector envs, the agent acting "
+                        "for all of them in one call, where the agent and the env allow it)")  # fmt: skip
+    parser.add_argument("--batch-size", type=int, default=DEFAULT_BATCH_SIZE, metavar="N",
+                        help="most sub-envs of one batch (default %(default)s)")  # fmt: skip
+    parser.add_argument("--threads", type=int, default=1, metavar="N",
+                        help="BLAS and torch threads per process (default %(default)s: the rows are then the same "
+                        "batched or not and on every executor)")  # fmt: skip
+
+
+def check_batch_arguments(args: argparse.Namespace, parser: argparse.ArgumentParser) -> None:
+    """A usage error (exit status 2) for a ``--batch-size`` or ``--threads`` below 1."""
+    if args.batch_size < 1:
+        parser.error(f"--batch-size must be positive, got {args.batch_size}")
+    if args.threads < 1:
+        parser.error(f"--threads must be positive, got {args.threads}")
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -62,6 +84,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         parser.error(f"--episodes must be positive, got {args.episodes}")
     if args.bootstrap < 0:
         parser.error(f"--bootstrap must be >= 0, got {args.bootstrap}")
+    check_batch_arguments(args, parser)
     try:
         for _, target in agent_labels(specs):
             check_agent_spec(target)
@@ -78,7 +101,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     executor = executor_from_arguments(args, parser)
     started = time.perf_counter()
     rows, summary = evaluate_agents(specs, args.episodes, args.seed, args.env, args.env_kwargs, verbose=not args.quiet,
-                                    bootstrap=args.bootstrap, executor=executor, stored_run=args.stored_run)  # fmt: skip
+                                    bootstrap=args.bootstrap, executor=executor, stored_run=args.stored_run,
+                                    batch=not args.no_batch, batch_size=args.batch_size, threads=args.threads)  # fmt: skip
     paths = write_outputs(rows, summary, args.out)
     print(f"{args.env}, {args.episodes} episodes per agent, seeds {args.seed}..{args.seed + args.episodes - 1}; "
           "mean ± 95% CI half-width\n")  # fmt: skip

@@ -1,15 +1,18 @@
-"""Running an evaluation: every agent on the same seeds, one episode at a time, on any executor.
+"""Running an evaluation: every agent on the same seeds, batched or one episode at a time, on any executor.
 
 :func:`evaluate_agents` is the entry point; :func:`run_episode` is the one episode loop that the
-evaluation, the validation callback and the robustness harness share.
+evaluation, the validation callback and the robustness harness share, and
+:func:`~agents.evaluate.batched.run_batched_episodes` its batched counterpart (the same rows).
 """
 
 from __future__ import annotations
 
+import contextlib
 import math
 import os
+import sys
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from typing import Any
 
 import gymnasium as gym
@@ -18,15 +21,32 @@ import numpy as np
 import seif_gym  # noqa: F401  (registers the environments)
 from agents.base import Agent
 from agents.baselines import BASELINES, baseline_class
+from agents.evaluate.batched import batch_env, batch_refusal, batch_sizes, run_batched_episodes
 from agents.evaluate.report import load_stored_run
 from agents.evaluate.schema import SCHEMA_VERSION, SUMMARY_METRICS
 from agents.evaluate.statistics import mean_ci, mean_curve, paired_comparison
 from agents.loading import agent_labels, check_agent_spec, load_agent
 from agents.parallel import Executor, chunks
+from agents.sb3_agent import InexactBatchError, SB3Agent, check_threads, torch_threads
 from seif_gym import LATEST_ID
 from seif_gym.progress import Progress
 
-__all__ = ["build_agent", "evaluate_agents", "make_evaluation_env", "run_episode", "without_exact_nees"]
+__all__ = [
+    "DEFAULT_BATCH_SIZE",
+    "build_agent",
+    "evaluate_agents",
+    "limited_threads",
+    "make_evaluation_env",
+    "run_episode",
+    "without_exact_nees",
+]
+
+#: Most sub-envs of one batch (:func:`evaluate_agents`' ``batch_size``): a policy's batched forward pass
+#: and the vector env's step gain little beyond it, and a task's episodes run in batches of at most this.
+DEFAULT_BATCH_SIZE = 100
+
+#: One episode's result in a task: run_episode's row and trace, the planning seconds and plans it took.
+EpisodeResult = tuple[dict[str, Any], list[float], float, int]
 
 
 def build_agent(spec: str, env: gym.Env, env_id: str, env_kwargs: Mapping[str, Any], seed: int) -> Agent:
@@ -155,28 +175,97 @@ def make_evaluation_env(env_id: str, env_kwargs: Mapping[str, Any]) -> gym.Env:
     return gym.make(env_id, **without_exact_nees(env_kwargs))
 
 
-def _run_episodes(
-    env_id: str, env_kwargs: Mapping[str, Any], target: str, agent_seed: int, seeds: Sequence[int]
-) -> list[tuple[dict[str, Any], list[float], float, int]]:
-    """One task of :func:`evaluate_agents`: the agent of ``target`` on ``seeds``, in order, in a fresh env.
+@contextlib.contextmanager
+def limited_threads(count: int) -> Iterator[None]:
+    """Inside the block, the BLAS libraries (numpy's, scipy's) and torch (once loaded) use ``count`` threads.
 
-    Returns, per episode, :func:`run_episode`'s row and map-error trace and
-    the planning seconds and plans it took (agents that plan and time it).
+    Set through ``threadpoolctl`` and ``torch.set_num_threads`` and restored on exit. A saved policy's
+    forward passes follow its own :attr:`~agents.sb3_agent.SB3Agent.threads`, which the evaluation sets
+    to ``count`` too.
+
+    Raises
+    ------
+    TypeError, ValueError
+        If ``count`` is not a positive int.
     """
-    env = make_evaluation_env(env_id, env_kwargs)
+    count = check_threads(count, "threads") or 1
+    import scipy.linalg  # noqa: F401  (loads scipy's BLAS, so that it is limited too)
+    from threadpoolctl import threadpool_limits
+
+    with threadpool_limits(limits=count, user_api="blas"), torch_threads(count if "torch" in sys.modules else None):
+        yield
+
+
+def _serial_episodes(agent: Agent, env: gym.Env, seeds: Sequence[int]) -> list[EpisodeResult]:
+    """:func:`run_episode` of ``agent`` on each seed, in order, with the planning time of each episode."""
+    out = []
+    for episode_seed in seeds:
+        times = getattr(agent, "planning_times", None)
+        before = len(times) if times is not None else 0
+        row, trace = run_episode(agent, env, int(episode_seed))
+        times = getattr(agent, "planning_times", None)
+        new = times[before:] if times is not None else []
+        out.append((row, trace, float(sum(new)), len(new)))
+    return out
+
+
+def _batched_episodes(agent: Agent, env_id: str, env_kwargs: Mapping[str, Any], seeds: Sequence[int],
+                      batch_size: int) -> tuple[list[EpisodeResult] | None, str | None]:  # fmt: skip
+    """``seeds`` in batches of at most ``batch_size`` sub-envs; ``(None, reason)`` where they cannot be batched."""
+    reason = batch_refusal(agent)
+    if reason is not None:
+        return None, reason
+    out: list[EpisodeResult] = []
+    first = 0
+    exact = agent.exact_batches() if isinstance(agent, SB3Agent) else contextlib.nullcontext()
     try:
-        agent = build_agent(target, env, env_id, env_kwargs, agent_seed)
-        out = []
-        for episode_seed in seeds:
-            times = getattr(agent, "planning_times", None)
-            before = len(times) if times is not None else 0
-            row, trace = run_episode(agent, env, int(episode_seed))
-            times = getattr(agent, "planning_times", None)
-            new = times[before:] if times is not None else []
-            out.append((row, trace, float(sum(new)), len(new)))
-        return out
-    finally:
-        env.close()
+        with exact:
+            for size in batch_sizes(len(seeds), batch_size):
+                env, why = batch_env(env_id, without_exact_nees(env_kwargs), size)
+                if env is None:
+                    return None, why
+                try:
+                    episodes = run_batched_episodes(agent, env, seeds[first : first + size])
+                finally:
+                    env.close()
+                out.extend((row, trace, 0.0, 0) for row, trace in episodes)
+                first += size
+    except InexactBatchError as error:  # a BLAS that rounds a batch otherwise: the serial path's rows instead
+        return None, str(error)
+    return out, None
+
+
+def _run_episodes(env_id: str, env_kwargs: Mapping[str, Any], target: str, agent_seed: int, seeds: Sequence[int],
+                  batch_size: int = 0, threads: int = 1) -> tuple[list[EpisodeResult], str | None]:  # fmt: skip
+    """One task of :func:`evaluate_agents`: the agent of ``target`` on ``seeds``, in order.
+
+    With ``batch_size > 1`` the episodes run as sub-envs of native vector envs (at most ``batch_size``
+    each) where the agent and the env allow it, else one after another in a fresh single env; on
+    ``threads`` threads (:func:`limited_threads`).
+
+    Returns
+    -------
+    episodes : list of tuple
+        Per episode, :func:`run_episode`'s row and map-error trace and the planning seconds and plans
+        it took (agents that plan and time it).
+    serial_reason : str or None
+        Why a batched run fell back to the serial path (``None``: batched, or not asked to be).
+    """
+    seeds = [int(seed) for seed in seeds]
+    with limited_threads(threads):
+        env = make_evaluation_env(env_id, env_kwargs)
+        try:
+            agent = build_agent(target, env, env_id, env_kwargs, agent_seed)
+            if isinstance(agent, SB3Agent):
+                agent.threads = threads
+            reason = None
+            if batch_size > 1:
+                episodes, reason = _batched_episodes(agent, env_id, env_kwargs, seeds, batch_size)
+                if episodes is not None:
+                    return episodes, None
+            return _serial_episodes(agent, env, seeds), reason
+        finally:
+            env.close()
 
 
 def evaluate_agents(
@@ -190,6 +279,9 @@ def evaluate_agents(
     bootstrap: int = 0,
     executor: Executor | None = None,
     stored_run: str | os.PathLike | None = None,
+    batch: bool = True,
+    batch_size: int = DEFAULT_BATCH_SIZE,
+    threads: int = 1,
 ) -> tuple[list[dict[str, Any]], dict[str, Any]]:
     """Run every agent on the seeds ``seed … seed + episodes − 1``.
 
@@ -218,6 +310,19 @@ def evaluate_agents(
         and seeds): its agents' episodes join this run's, after them, without
         running again; its baselines count as baselines of the paired
         comparison. Its labels may not repeat this run's.
+    batch : bool
+        Run each task's episodes as the sub-envs of native vector envs, the agent acting for all of
+        them in one call (:func:`~agents.evaluate.batched.run_batched_episodes`; the same rows but for
+        ``decision_time_ms``). Agents that cannot act so (:func:`~agents.evaluate.batched.batch_refusal`:
+        ``random``, ``info_gain``, RLlib checkpoints) and configurations the vector env runs as single
+        envs (:func:`~agents.evaluate.batched.batch_env`) run one episode at a time, as with ``False``;
+        progress says so once per agent (``verbose``).
+    batch_size : int
+        Most sub-envs of one batch (a task's episodes run in as few batches as that allows).
+    threads : int
+        BLAS and torch threads of each task (:func:`limited_threads`; a saved policy's
+        :attr:`~agents.sb3_agent.SB3Agent.threads`); with one, the rows are the same on every
+        executor and batched or not.
 
     Returns
     -------
@@ -229,13 +334,19 @@ def evaluate_agents(
     Raises
     ------
     ValueError
-        If no agent is given, ``episodes`` is not positive, an agent spec is unknown, or the stored
-        run does not fit (:func:`~agents.evaluate.report.load_stored_run`), all before any episode runs.
+        If no agent is given, ``episodes``, ``batch_size`` or ``threads`` is not positive, an agent
+        spec is unknown, or the stored run does not fit (:func:`~agents.evaluate.report.load_stored_run`),
+        all before any episode runs.
     FileNotFoundError
         If a saved model or the stored run's files do not exist.
     TypeError
-        If ``stored_run`` is not a path.
+        If ``stored_run`` is not a path, or ``batch_size`` or ``threads`` is not an int.
     """
+    threads = check_threads(threads, "threads") or 1
+    if isinstance(batch_size, bool) or not isinstance(batch_size, (int, np.integer)):
+        raise TypeError(f"batch_size must be a positive int, got {batch_size!r}")
+    if batch_size < 1:
+        raise ValueError(f"batch_size must be a positive int, got {batch_size!r}")
     if isinstance(agent_specs, str):
         agent_specs = [spec for spec in agent_specs.split(",") if spec]
     if not agent_specs:
@@ -258,24 +369,38 @@ def evaluate_agents(
     # tasks: runs of consecutive seeds of one agent; an agent whose state carries over between
     # episodes (random's generator) gets all of its seeds in one task, as in a serial run
     slots = executor.slots() if executor.kind != "serial" else 1
+    size = int(batch_size) if batch else 0
+    if size > 1:  # the configuration's batching, told once for every agent
+        probe, why = batch_env(env_id, without_exact_nees(env_kwargs), 1)
+        if probe is None:
+            size = 0
+            if verbose:
+                print(f"{env_id}: every agent runs one episode at a time ({why})", file=sys.stderr)
+        else:
+            probe.close()
     tasks: list[tuple[Any, ...]] = []
     owner: list[int] = []
     for number, (_, target) in enumerate(labelled):
         for run in chunks(seeds, slots, together=_carries_over(target)):
-            tasks.append((env_id, env_kwargs, target, int(seed), run))
+            tasks.append((env_id, env_kwargs, target, int(seed), run, size, threads))
             owner.append(number)
     remaining = [owner.count(number) for number in range(len(labelled))]
-    collected: dict[int, list[tuple[dict[str, Any], list[float], float, int]]] = {}
+    collected: dict[int, list[EpisodeResult]] = {}
+    told: set[int] = set()
     started = time.perf_counter()
     progress = Progress(len(labelled) * len(seeds), f"{env_id}", enabled=verbose, unit="episodes")
 
-    def episodes_of(number: int) -> list[tuple[dict[str, Any], list[float], float, int]]:
+    def episodes_of(number: int) -> list[EpisodeResult]:
         return [item for index in sorted(collected) if owner[index] == number for item in collected[index]]
 
-    def arrived(index: int, result: list[tuple[dict[str, Any], list[float], float, int]]) -> None:
+    def arrived(index: int, outcome: tuple[list[EpisodeResult], str | None]) -> None:
         number = owner[index]
         label = labelled[number][0]
+        result, reason = outcome
         collected[index] = result
+        if reason is not None and number not in told:  # once per agent
+            told.add(number)
+            progress.write(f"{label}: one episode at a time ({reason})")
         for row, _, _, _ in result:
             progress.update(1, f"{label} seed {row['seed']}: {row['final_map_error']:.3f} m")
         remaining[number] -= 1

@@ -171,7 +171,7 @@ def _belief_map(
 @njit(cache=True)
 def _fill_belief_map(out: UInt8Array, coverage: UInt8Array, resolution: float, half_arena: float, x: float, y: float,
                      theta: float, size: int, extent: float, landmarks: FloatArray, confidence: FloatArray) -> None:  # fmt: skip
-    """:func:`_belief_map` written into ``out`` (3, size, size), the same bits at about half the cost.
+    """:func:`_belief_map` written into ``out`` (3, size, size), the same bits with the row and column terms hoisted.
 
     A cell's world point ``(x + c f − s l, y + s f + c l)`` is evaluated as ``(x + c f) − (s l)`` and
     ``(y + s f) + (c l)``, the order of :func:`_belief_map`'s expression, with the row terms computed

@@ -1,8 +1,8 @@
 """``SeifExploreVectorEnv``: N ``SeifExplore`` envs advanced by compiled kernels over arrays with an env axis.
 
 A step of the single env (:class:`~seif_gym.envs.explore.SeifExploreEnv`)
-spends most of its ~100 µs in some two hundred small Python calls around a
-~30 µs filter. Here one ``step`` of N envs is a handful of compiled calls, each
+spends most of its time in small Python calls around the filter
+(``docs/performance_notes.md``). Here one ``step`` of N envs is a handful of compiled calls, each
 looping over the envs (with ``num_threads > 1``, one parallel loop on numba's threads:
 :mod:`seif_gym.threads`): the worlds
 (:class:`~seif_gym.world.BatchedWorld`), the

@@ -191,7 +191,7 @@ def _wrap(angle):
 
 @njit(cache=True)
 def range_bearing_jacobian(dx, dy, H):
-    """Fill ``H`` (2, 5) of ``SEIF.md`` (columns x, y, theta, m_x, m_y) for ``d = m - (x, y)``; returns ``q``."""
+    """Fill ``H`` (2, 5) of :class:`~seif_gym.slam.models.RangeBearingSensor` for ``d = m - (x, y)``; returns ``q``."""
     q = dx * dx + dy * dy
     sqrt_q = np.sqrt(q)
     H[0, 0] = -dx / sqrt_q
@@ -841,7 +841,7 @@ def seif_predict_many(*arguments):
 def _map_ids(mean, counters, id_to_index, ids, ranges, bearings, measured):
     """State orders of the ``measured`` ids; a new landmark is appended at the inverse sensor model's position.
 
-    ``SEIF.md``, sensor (``SlamFilter._update_known`` and ``SEIF._add_landmarks``); ``counters[0]`` counts it.
+    ``SlamFilter._update_known`` and ``SEIF._add_landmarks``; ``counters[0]`` counts it.
     """
     m = measured.shape[0]
     n = counters[0]
@@ -1031,7 +1031,7 @@ def relocalization_pose_information(
     ``S_i = Q + H_m P_i H_m^T`` counts the landmark's own uncertainty, with
     ``P_i = Omega_ii^-1`` its conditional covariance (the constant-time proxy
     the SEIF also uses; a lower bound of the marginal). ``H_x``, ``H_m`` are the
-    pose and landmark columns of ``H`` (``SEIF.md``, range-bearing sensor) at
+    pose and landmark columns of ``H`` (:class:`~seif_gym.slam.models.RangeBearingSensor`) at
     the current mean.
     """
     offsets = np.empty((indices.shape[0], 2))

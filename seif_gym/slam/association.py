@@ -11,8 +11,8 @@ Algorithm, per scan (Probabilistic Robotics, sections 10.3 and 12.7)
    the map at the estimated pose, ``p_i = (x + r_i cos(phi_i + theta), ...)``.
    Mapped landmarks within ``candidate_radius + 3 (sqrt(lambda_max(Sigma_xy))
    + r_i sigma_theta)`` of ``p_i`` are its candidates (a compiled linear scan
-   over the landmark means: ~1 ns per landmark, negligible next to the rest
-   for maps of thousands of landmarks).
+   over the landmark means, ``O(n m)`` for ``n`` landmarks and ``m``
+   measurements).
 2. **Innovation covariances.** One joint covariance ``P`` of the pose and all
    candidates of the scan comes from the filter's ``local_joint_covariance``:
    exact for the EKF/EIF; for the SEIF the Markov-blanket block (robot, its
@@ -87,11 +87,9 @@ Algorithm, per scan (Probabilistic Robotics, sections 10.3 and 12.7)
    ``tentative_closures`` a deferred lone closure (step 6) starts a
    tentative landmark instead of being discarded, merged into its old one
    once a closure is accepted and the correspondence test passes. The
-   ``"revisable"`` preset turns both on: 99.64% (EKF) / 99.56% (SEIF) correct,
-   0.21% / 0.58% duplicates on the runs below (``docs/fidelity.md``). The
-   ``"likelihood"`` preset adds ``joint_objective="likelihood"``, a 0.9999
-   gate and ``exclusion_margin``: the issue's targets also on seeds the design
-   never saw (``docs/fidelity.md``).
+   ``"revisable"`` preset turns both on; the ``"likelihood"`` preset adds
+   ``joint_objective="likelihood"``, a 0.9999 gate and ``exclusion_margin``
+   (:data:`ASSOCIATOR_PRESETS`).
 
 For SEIF-type filters the covariance of step 2 comes from
 :func:`seif_gym.slam.marginals.breadth_first_joint_covariance` (a block of at
@@ -100,28 +98,19 @@ most ``blanket_size`` landmarks grown by breadth-first search through
 of the Markov blanket, which conditions on the loop and is far too tight for
 landmarks mapped a loop ago (``blanket_size=0`` restores it).
 
-Figures (``python benchmarks/association.py --seeds 3``, the eight
-``FIDELITY_SCENARIOS`` x seeds 0-2, default ``Associator()``): correct
-99.41% (EKF) / 98.98% (SEIF, ``max_active=8``), duplicate landmarks 0.12% /
-4.20% of the true landmarks, discarded 0.58% / 0.62% (the "individual"
-preset, seif_gym 0.1: 98.60% / 99.27%, 5.32% / 4.82%; without the deferral of
-step 6, ``closure_pairings=1``: 99.41% / 99.31%, 1.73% / 3.26%). The
-deferral removes the EKF's false loop closures; the SEIF's remaining errors
-(``circle-large``, ``rectangle-narrow``) are closures its overconfident
-covariance gets wrong, which the deferral does not cure (seed 0 alone: SEIF
-98.78%, 6.20% against the individual preset's 99.32%, 4.86%). Cost: 0.6 ms (EKF)
-/ 0.9 ms (SEIF) per scan, mean over those runs (3.8 ms before the branch and
-bound was compiled; the individual preset: 0.2 ms), bounded for the SEIF by ``blanket_size`` and ``max_nodes``;
-the candidate search is a compiled linear scan over the landmark means
-(about 1 ns per landmark and measurement: 0.1 ms for 5000 landmarks and 20
-measurements). Victoria Park (``python -m seif_gym.datasets.victoria_park``
-with these defaults): SEIF 1.64 m RMSE vs GPS at ``max_active=8``, ESEIF
-1.47-2.09 m for ``max_active`` 4-16 (no divergence).
+The cost per scan is bounded for the SEIF by ``blanket_size`` and
+``max_nodes``, whatever the size of the map, apart from the linear candidate
+search. Accuracy and cost on the loop-closing runs
+(``benchmarks/association.py``) are in ``docs/filters/fidelity.md`` and
+``docs/performance_notes.md``.
 
 Use
 ---
+:meth:`Associator.update` associates a scan, then calls ``filt.update_trusted``
+with the measurements whose ids are ``>= 0``:
+
 >>> associator = Associator()                             # doctest: +SKIP
->>> ids = associator.update(filt, ranges, bearings)       # associate, then filt.update_trusted on ids >= 0
+>>> ids = associator.update(filt, ranges, bearings)       # doctest: +SKIP
 
 With a simulator, :class:`AssociationAudit` scores the decisions against the
 true ids (and maps the associator's ids to true ones, e.g. for a map error).
@@ -171,8 +160,7 @@ _FORBIDDEN = 1e9
 def _candidates(landmarks: FloatArray, points: FloatArray, radii: FloatArray) -> tuple[IntArray, IntArray, FloatArray]:
     """Pairs ``(i, j)`` with ``|landmarks[j] - points[i]| < radii[i]``, and that squared distance.
 
-    Two passes (count, then fill) over all landmarks: about a nanosecond per
-    landmark and measurement.
+    Two passes (count, then fill) over all landmarks: ``O(n m)`` for ``n`` landmarks and ``m`` points.
     """
     m = points.shape[0]
     n = landmarks.shape[0]
@@ -272,7 +260,8 @@ def pair_innovations(
     """Innovations ``nu`` (K, 2) and Jacobians ``H`` (K, 2, 5) of (measurement, candidate) pairs.
 
     Pair ``k`` is measurement ``pair_meas[k]`` and the landmark ``landmarks[pair_slot[k]]``; ``H``'s
-    columns are ``(x, y, theta, m_x, m_y)`` (``SEIF.md``), the bearing innovation is wrapped.
+    columns are ``(x, y, theta, m_x, m_y)`` (:class:`~seif_gym.slam.models.RangeBearingSensor`), the bearing
+    innovation is wrapped.
     """
     d = landmarks[pair_slot] - pose[:2]
     q = np.einsum("ki,ki->k", d, d)
@@ -674,8 +663,8 @@ def jcbb(
     initial : list of int, optional
         A hypothesis to start from (e.g. the individually best assignment).
     compiled : bool
-        Run the compiled search (``_jcbb_compiled``, about 20x faster) rather than the plain-Python
-        reference :class:`_JointSearch`; both return the same hypothesis.
+        Run the compiled search (``_jcbb_compiled``) rather than the plain-Python reference
+        :class:`_JointSearch`; both return the same hypothesis.
     gains : ndarray, shape (K,), optional
         Rank the jointly compatible hypotheses by likelihood rather than by their number of
         pairings: maximise ``sum_k gains[k] - (d2_H + ln det S_H) / 2`` (:meth:`_JointSearch.score`).

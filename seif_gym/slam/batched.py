@@ -18,10 +18,12 @@ landmarks, 460 KB for 120.
 
 Notes
 -----
-The steps are those of ``SEIF.md``: motion update (section 1), measurement
-update (section 2), mean recovery (the wavefront of
-:func:`seif_gym.slam.seif.recover_mean_wavefront`) and sparsification
-(section 3), in the order of :class:`~seif_gym.slam.seif.SEIF`.
+The steps are those of :mod:`seif_gym.slam.seif`: motion update
+(:func:`~seif_gym.slam.seif.motion_update`), measurement update
+(:func:`~seif_gym.slam.seif.measurement_update`), mean recovery (the wavefront
+of :func:`~seif_gym.slam.seif.recover_mean_wavefront`) and sparsification
+(:func:`~seif_gym.slam.seif.sparsify`), in the order of
+:class:`~seif_gym.slam.seif.SEIF`.
 """
 
 from __future__ import annotations

@@ -6,8 +6,9 @@ filters only call :meth:`MotionModel.linearize`, which returns the pose
 increment, its Jacobian and the state-space noise in one call (one call keeps
 the per-step Python overhead small). The simulator calls ``sample``.
 
-Equations are those of ``SEIF.md`` ("Velocity motion model",
-"Range-bearing sensor").
+Equations: Thrun, Burgard & Fox, *Probabilistic Robotics*, Table 5.3 (the
+velocity motion model) and the range-bearing measurement model of chapters 6
+and 10; each class's Notes write them out.
 """
 
 from __future__ import annotations
@@ -106,7 +107,7 @@ class VelocityMotionModel:
 
     Notes
     -----
-    Implements ``SEIF.md``, "Velocity motion model". The arc is written as
+    Thrun Table 5.3 (the velocity motion model). The arc is written as
 
     .. math:: \delta = (v\Delta t\,\cos(\theta+\omega\Delta t/2)\,\mathrm{sinc}(\omega\Delta t/2),
               v\Delta t\,\sin(\theta+\omega\Delta t/2)\,\mathrm{sinc}(\omega\Delta t/2), \omega\Delta t)
@@ -152,7 +153,7 @@ class VelocityMotionModel:
         return v * dt * math.cos(mid) * sinc, v * dt * math.sin(mid) * sinc, w * dt
 
     def displacement(self, pose: ArrayLike, control: ArrayLike, dt: float) -> FloatArray:
-        """Pose increment ``delta`` of ``SEIF.md`` (angle not wrapped)."""
+        """Pose increment ``delta`` of the class Notes (angle not wrapped)."""
         pose, control, dt = self._check(pose, control, dt)
         return np.array(self._displacement(pose[2], control[0], control[1], dt))
 
@@ -316,9 +317,15 @@ class RangeBearingSensor:
 
     Notes
     -----
-    Implements ``SEIF.md``, "Range-bearing sensor":
-    ``z = (sqrt(q), atan2(d_y, d_x) - theta)`` with ``d = m - (x, y)``, and the
-    Jacobian ``H`` with columns ``(x, y, theta, m_x, m_y)``.
+    With ``d = m - (x, y)`` and ``q = d^T d``, a landmark ``m`` is measured
+    as ``z = (sqrt(q), atan2(d_y, d_x) - theta)`` (bearing wrapped), with the
+    Jacobian over ``(x, y, theta, m_x, m_y)`` (:meth:`jacobian`)::
+
+        H = 1/q [[-sqrt(q) d_x, -sqrt(q) d_y,  0,  sqrt(q) d_x,  sqrt(q) d_y],
+                 [        d_y,          -d_x, -q,         -d_y,          d_x]]
+
+    A landmark seen for the first time is placed by the inverse model
+    ``m = (x + r cos(phi + theta), y + r sin(phi + theta))`` (:meth:`inverse`).
     """
 
     def __init__(
@@ -382,7 +389,7 @@ class RangeBearingSensor:
         return z
 
     def jacobian(self, pose: ArrayLike, landmarks: ArrayLike) -> FloatArray:
-        """``H`` of ``SEIF.md`` for each landmark, shape (m, 2, 5)."""
+        """``H`` of the class Notes for each landmark, shape (m, 2, 5)."""
         pose = as_finite_vector(pose, "pose", 3)
         landmarks = self._landmarks(landmarks)
         d = landmarks - pose[:2]

@@ -725,7 +725,7 @@ class SEIF(SlamFilter, SparseInformationForm):
         Queued landmarks relaxed per update by the wavefront recovery. More
         keeps up better after large corrections but costs time in every update
         of a long map (a small correction travels far along a chain of
-        landmarks); ``docs/fidelity.md`` measures the trade-off.
+        landmarks); ``docs/filters/fidelity.md`` measures the trade-off.
     recovery_relaxation : float, default 1.8
         Over-relaxation ``w`` in ``(0, 2)`` of the queued landmarks' steps.
     recovery_tolerance : float, default 1e-4

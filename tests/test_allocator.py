@@ -41,6 +41,7 @@ def _refaults(mode: str) -> int:
     return int(done.stdout.split()[-1])
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(not GLIBC, reason="glibc's mallopt: the function returns False elsewhere (tested below)")
 def test_a_freed_block_is_reused_without_faulting_its_pages_in_again():
     # glibc's default: the block is mapped anew and its pages fault in again (the control: this can fail);
@@ -51,6 +52,7 @@ def test_a_freed_block_is_reused_without_faulting_its_pages_in_again():
     assert _refaults("keep") * 10 < default
 
 
+@pytest.mark.slow
 def test_keep_freed_memory_says_whether_it_acted():
     # in a fresh process: it changes the allocator of the process it runs in
     script = "from agents.allocator import keep_freed_memory; print(keep_freed_memory())"
@@ -78,6 +80,7 @@ def _train_both(folder: Path) -> tuple[dict[str, torch.Tensor], dict[str, torch.
     return kept, plain
 
 
+@pytest.mark.slow
 def test_training_computes_the_same_weights_with_and_without_it(tmp_path):
     pytest.importorskip("rl_zoo3", reason="rl_zoo3 is in the train extra")
     kept, plain = _train_both(tmp_path)

@@ -55,6 +55,7 @@ def agreement(filter_class, seed: int, associator: Associator | None = None) -> 
     return audit
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("filter_class", [SEIF, EKF])
 def test_association_agrees_with_the_truth_on_99_percent(filter_class):
     audits = [agreement(filter_class, seed) for seed in range(5)]
@@ -446,6 +447,7 @@ def loop_audit(scenario: str, seed: int, filter_name: str, preset: str) -> Assoc
     return audit
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("filter_name", ["EKF", "SEIF"])
 def test_loop_closing_runs_beat_the_individual_associator(filter_name):
     """All eight ``FIDELITY_SCENARIOS``, seed 0 (no selection), default ("joint") against "individual".

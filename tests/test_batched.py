@@ -37,6 +37,7 @@ def _assert_same(batch: BatchedSEIF, e: int, filt: SEIF, step: int) -> None:
     np.testing.assert_array_equal(batch.queue_state[e, 1], filt._queue.state[1], err_msg=where)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     "batch_class, scenario, max_active",
     [

@@ -27,6 +27,7 @@ def test_default_variants_are_every_layout_of_a_version():
         resolve_tasks(["NoSuchLayout"], None)
 
 
+@pytest.mark.slow
 def test_shipped_policy_fits_the_default_variant():
     assert benchmark.policy_fits(benchmark.SHIPPED_POLICIES["ppo"], "SeifExplore-v1")
     for policy in benchmark.SHIPPED_POLICIES.values():  # and each fits the variant it was trained on and its task
@@ -59,6 +60,7 @@ def test_policy_fits_reads_a_recurrent_policy(tmp_path):
     assert benchmark.policy_fits(benchmark.ShippedPolicy(path, "SeifExploreLoopBudget-v2", "a test"), "SeifExplore-v2")
 
 
+@pytest.mark.slow
 def test_run_benchmark_writes_the_leaderboard(tmp_path, monkeypatch):
     # a policy whose spaces do not fit is left out, and the leaderboard says so
     monkeypatch.setattr(benchmark, "policy_fits", lambda policy, env_id: False)
@@ -90,6 +92,7 @@ def test_run_benchmark_writes_the_leaderboard(tmp_path, monkeypatch):
     assert math.isfinite(by_agent["random"]["final_map_error"])
 
 
+@pytest.mark.slow
 def test_a_shipped_policy_goes_by_its_leaderboard_name_in_the_variants_own_files(tmp_path):
     # the file is ppo.zip; the leaderboard, results.csv and summary.md all call it ppo
     rows = benchmark.run_benchmark(["SeifExplore-v0"], ["frontier", "ppo"], episodes=1, seed=7, out=tmp_path)
@@ -161,6 +164,7 @@ def test_run_benchmark_rejects_bad_arguments(tmp_path):
         benchmark.run_benchmark(["SeifExplore-v1"], ["random"], episodes=0, seed=0, out=tmp_path)
 
 
+@pytest.mark.slow
 def test_run_benchmark_on_local_processes_equals_the_serial_run(tmp_path):
     """``--jobs`` runs the variants through agents.parallel.Executor: the same rows as one process."""
     arguments = (["SeifExplore-v1", "SeifExploreLoop-v1"], ["frontier", "random"])
@@ -170,6 +174,7 @@ def test_run_benchmark_on_local_processes_equals_the_serial_run(tmp_path):
     assert (tmp_path / "jobs" / "leaderboard.md").read_text() == (tmp_path / "serial" / "leaderboard.md").read_text()
 
 
+@pytest.mark.slow
 def test_run_benchmark_with_episodes_on_local_processes_equals_the_serial_run(tmp_path):
     """``--workers``: each variant's episodes spread over the executor's processes; the rows of one process."""
     from agents.parallel import Executor

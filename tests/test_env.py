@@ -177,6 +177,7 @@ def test_make_after_import():
     env.close()
 
 
+@pytest.mark.slow
 def test_make_with_module_prefix_in_fresh_interpreter():
     code = textwrap.dedent(
         """
@@ -1137,8 +1138,10 @@ def test_sync_and_async_vector_envs_agree():
 #: class); ``start_method="fork"`` workers inherit the parent's registry, so the plain id works there.
 SB3_VEC_CASES = [
     pytest.param("dummy", ENV_ID, None, id="DummyVecEnv"),
-    pytest.param("subproc", "seif_gym:SeifExplore-v0", None, id="SubprocVecEnv-default-start-prefixed-id"),
-    pytest.param("subproc", "env-class", None, id="SubprocVecEnv-default-start-env-class"),
+    pytest.param(
+        "subproc", "seif_gym:SeifExplore-v0", None, id="SubprocVecEnv-default-start-prefixed-id", marks=pytest.mark.slow
+    ),
+    pytest.param("subproc", "env-class", None, id="SubprocVecEnv-default-start-env-class", marks=pytest.mark.slow),
     pytest.param("subproc", ENV_ID, {"start_method": "fork"}, id="SubprocVecEnv-fork-plain-id"),
 ]
 
@@ -1202,6 +1205,7 @@ def random_run(env: gym.Env, steps: int, seed: int) -> tuple[int, int]:
     return episodes, walls
 
 
+@pytest.mark.slow
 def test_short_random_run_is_finite_and_does_not_leak():
     """Fast companion of the 100 000-step run: traced Python memory stays flat over episodes."""
     import tracemalloc
@@ -1223,8 +1227,9 @@ def test_short_random_run_is_finite_and_does_not_leak():
     assert after - before < 512 * 1024, f"traced memory grew by {(after - before) / 1024:.0f} KiB over 30 episodes"
 
 
+@pytest.mark.slow
 def test_100k_random_steps_no_nan_no_memory_growth():
-    """About 15 s on 2 cores (not marked slow; mark it if it grows past a minute)."""
+    """A soak of 100 000 random steps: no NaN, no growth of memory (the slow tier)."""
     total, warm_up = 100_000, 10_000
     env = make()
     started = time.perf_counter()

@@ -351,6 +351,7 @@ def random_trajectory(rng, steps: int, motion, arena: float, speed: float = 1.0,
     return start, controls
 
 
+@pytest.mark.slow
 def test_pose_anees_of_ekf_and_eseif_is_in_the_chi2_band():
     """50 random trajectories of 60 steps through 25 random landmarks; NEES at steps 20, 40, 60.
 

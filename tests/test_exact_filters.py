@@ -98,7 +98,7 @@ def test_ekf_and_eif_agree_after_a_closed_loop(loop_results):
     _assert_close(eif_result["pose_covariances"], ekf_result["pose_covariances"], "pose covariances")
 
 
-@pytest.mark.parametrize("implementation", ["compiled", "reference"])
+@pytest.mark.parametrize("implementation", ["compiled", pytest.param("reference", marks=pytest.mark.slow)])
 def test_seif_without_sparsification_equals_ekf_and_eif(loop_run, loop_results, implementation):
     motion, sensor, run = loop_run
     _, ekf, ekf_result, eif, _ = loop_results

@@ -55,21 +55,25 @@ def map_rmse() -> dict[str, float]:
     return {label: float(np.mean(values)) for label, values in totals.items()}
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("k", KS)
 def test_default_recovery_keeps_up_with_the_exact_mean(map_rmse, k):
     assert map_rmse[f"SEIF wavefront k={k}"] <= 1.1 * map_rmse[f"SEIF exact k={k}"]
 
 
+@pytest.mark.slow
 def test_seif_and_eseif_close_to_the_ekf(map_rmse):
     assert map_rmse["SEIF wavefront k=8"] <= 1.5 * map_rmse["EKF"]
     assert map_rmse["ESEIF k=8"] <= 1.3 * map_rmse["EKF"]
 
 
+@pytest.mark.slow
 def test_thresholds_separate_the_round_robin_recovery(map_rmse):
     """The v0 recovery fails the SEIF's EKF threshold, so the tests above can fail."""
     assert map_rmse["SEIF amortized k=8"] > 1.5 * map_rmse["EKF"]
 
 
+@pytest.mark.slow
 def test_scenarios_are_reproducible_and_close_their_loops():
     for name, scenario in FIDELITY_SCENARIOS.items():
         _, _, first = make_loop_run(scenario, 3)

@@ -85,6 +85,7 @@ def test_a_file_that_is_not_an_episode_is_named(episodes, tmp_path, capsys):
     assert "text.npz" in err and "Traceback" not in err
 
 
+@pytest.mark.slow
 def test_the_old_module_name_warns_and_works():
     sys.modules.pop("seif_gym.evaluate", None)
     with pytest.warns(DeprecationWarning, match="seif_gym.harness"):

@@ -248,6 +248,7 @@ def association_run(scenario: str, seed: int, loop_merge: bool) -> AssociationAu
     return audit
 
 
+@pytest.mark.slow
 def test_loop_merge_takes_back_the_seifs_duplicates():
     """``rectangle-narrow`` seed 0, SEIF(k=8): the overconfident closure that duplicates part of the map.
 
@@ -261,6 +262,7 @@ def test_loop_merge_takes_back_the_seifs_duplicates():
     assert merged.agreement > plain.agreement
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("filter_name", ["EKF", "SEIF"])
 def test_revisable_association_meets_the_targets_on_the_loop_runs(filter_name):
     """All eight ``FIDELITY_SCENARIOS``, seed 0 (no selection): the ``"revisable"`` preset (merges and tentative closures)
@@ -291,6 +293,7 @@ def test_revisable_association_meets_the_targets_on_the_loop_runs(filter_name):
     assert sum(a.associator.stats.merged for a in audits["revisable"]) > 0
 
 
+@pytest.mark.slow
 def test_likelihood_preset_refuses_the_false_closure_of_circle_large_seed_5():
     """``circle-large`` seed 5, EKF: at scan 420 two unmapped trees fall inside the gates of two old landmarks.
 

@@ -106,6 +106,7 @@ def one_update(fused: bool) -> RecurrentPPO:
     return model
 
 
+@pytest.mark.slow
 def test_training_with_the_fused_step_collects_the_same_rollout_and_takes_the_same_update(monkeypatch):
     reference = one_update(fused=False)
     calls = []

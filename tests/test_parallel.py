@@ -68,6 +68,7 @@ def test_chunks_cover_the_items_in_order():
     assert len(chunks(items, 2)) == 4 and chunks([], 3) == []
 
 
+@pytest.mark.slow
 def test_evaluate_agents_rows_equal_on_local_processes():
     """random carries its generator across episodes (one task); frontier's seeds are split into tasks."""
     kwargs = {"max_episode_steps": 25}
@@ -83,6 +84,7 @@ def test_evaluate_agents_rows_equal_on_local_processes():
     assert 1 <= len(pids) <= 2 and os.getpid() not in pids
 
 
+@pytest.mark.slow
 def test_robustness_rows_and_curves_equal_on_local_processes(tmp_path):
     arguments = (["random", "frontier"], ["uniform"], [0, 1], 15, ["seif-k4", "ekf"])
     serial_rows, serial_series = robustness(*arguments, env_id="SeifExplore-v1")
@@ -98,6 +100,7 @@ def test_robustness_rows_and_curves_equal_on_local_processes(tmp_path):
     ]
 
 
+@pytest.mark.slow
 def test_evaluate_command_runs_on_workers(tmp_path):
     command = [sys.executable, "-m", "agents.evaluate", "--agents", "frontier", "--episodes", "2", "--seed", "5"]
     command += ["--env-kwargs", json.dumps({"max_episode_steps": 10}), "--out", str(tmp_path), "--quiet"]
@@ -123,6 +126,7 @@ def _gone(pid: int) -> bool:
     return False
 
 
+@pytest.mark.slow
 def test_a_worker_ends_when_its_parent_is_killed(tmp_path):
     """A parent killed while its workers run long tasks leaves no worker computing for nobody."""
     import signal

@@ -94,6 +94,7 @@ def _module_weights(module: torch.nn.Module) -> dict[str, np.ndarray]:
     return {key: value.detach().cpu().numpy().copy() for key, value in module.state_dict().items()}
 
 
+@pytest.mark.slow
 def test_cluster_has_two_loopback_nodes(cluster):
     alive = [node for node in ray.nodes() if node["Alive"]]
     assert len(alive) == 2
@@ -101,6 +102,7 @@ def test_cluster_has_two_loopback_nodes(cluster):
     assert ray.cluster_resources()["CPU"] == 2
 
 
+@pytest.mark.slow
 def test_one_iteration_writes_checkpoint_and_progress(trained):
     assert trained.iterations == 1
     assert trained.env_steps >= TINY["train_batch_size"]
@@ -112,11 +114,13 @@ def test_one_iteration_writes_checkpoint_and_progress(trained):
     assert (trained.checkpoint.parent / "config.json").is_file()
 
 
+@pytest.mark.slow
 def test_env_runners_sampled_on_both_nodes(trained):
     assert len(trained.env_runner_nodes) == 2
     assert len(set(trained.env_runner_nodes)) == 2, "the two env runners should sit on the two nodes"
 
 
+@pytest.mark.slow
 def test_checkpoint_restores(trained):
     """The algorithm checkpoint restores (here into a driver-only algorithm) and training goes on from it."""
     config = build_config("SeifExplore-v0", **{**TINY, "num_env_runners": 0, "num_envs_per_env_runner": 1})
@@ -135,6 +139,7 @@ def test_checkpoint_restores(trained):
         stop_algorithm(algo)
 
 
+@pytest.mark.slow
 def test_training_changed_the_policy(trained):
     """The checkpoint holds trained weights, not the initial ones (same seed, same spaces)."""
     agent = RLlibAgent(trained.checkpoint)
@@ -149,6 +154,7 @@ def test_training_changed_the_policy(trained):
     assert "pi_mean.weight" in changed and "vf_out.weight" in changed
 
 
+@pytest.mark.slow
 def test_rllib_agent_acts_deterministically(trained):
     env = gym.make("SeifExplore-v0", max_episode_steps=6)
     agent = load_agent(f"rllib:{trained.checkpoint}", env)
@@ -174,6 +180,7 @@ def test_rllib_agent_acts_deterministically(trained):
     np.testing.assert_allclose(batched, np.stack(actions), rtol=1e-6, atol=1e-6)
 
 
+@pytest.mark.slow
 def test_evaluate_takes_an_rllib_spec(trained):
     from agents import evaluate
 
@@ -271,6 +278,7 @@ def test_module_reads_uint8_and_float_maps_alike():
     assert values.shape == (1,)
 
 
+@pytest.mark.slow
 def test_seif_gym_and_agents_import_without_ray():
     code = (
         "import sys; import seif_gym, agents, agents.evaluate, agents.baselines; "
@@ -292,6 +300,7 @@ def _alive_nodes():
     return {node["NodeID"] for node in ray.nodes() if node["Alive"]}
 
 
+@pytest.mark.slow
 def test_robustness_harness_on_two_nodes_equals_serial(cluster):
     arguments = (["random", "frontier"], ["uniform"], [0, 1, 2, 3], 12, ["seif-k4", "ekf"])
     serial_rows, serial_series = robustness(*arguments, env_id="SeifExplore-v1")
@@ -306,6 +315,7 @@ def test_robustness_harness_on_two_nodes_equals_serial(cluster):
     assert set(executor.placements) == _alive_nodes(), "the tasks should run on both nodes"
 
 
+@pytest.mark.slow
 def test_evaluate_agents_on_two_nodes_equals_serial(cluster):
     kwargs = {"max_episode_steps": 15}
     serial_rows, serial_summary = evaluate_agents(["random", "revisit"], 4, 20, "SeifExplore-v1", kwargs)
@@ -317,6 +327,7 @@ def test_evaluate_agents_on_two_nodes_equals_serial(cluster):
     assert set(executor.placements) <= _alive_nodes()
 
 
+@pytest.mark.slow
 def test_robustness_command_with_ray_address(cluster, tmp_path):
     """``--ray ADDRESS`` from another process: it joins the cluster as a driver and leaves it running."""
     command = [sys.executable, "-m", "agents.robustness", "--agents", "frontier", "--episodes", "2", "--steps", "8"]

@@ -117,6 +117,7 @@ def test_human_mode_uses_a_window(monkeypatch):
         plt.switch_backend(previous)
 
 
+@pytest.mark.slow
 def test_import_needs_no_pyplot():
     """rgb_array rendering never imports pyplot, so it needs no display and leaves the backend alone."""
     code = (

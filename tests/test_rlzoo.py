@@ -65,6 +65,7 @@ def zoo_run(tmp_path_factory) -> Path:
     return folder
 
 
+@pytest.mark.slow
 def test_rl_zoo3_trains_with_the_shipped_config(zoo_run):
     run = zoo_run / "logs" / "ppo" / f"{ENV_ID}_1"
     assert (run / f"{ENV_ID}.zip").is_file() and (run / ENV_ID / "vecnormalize.pkl").is_file()
@@ -97,6 +98,7 @@ def test_rl_zoo3_trains_with_the_shipped_config(zoo_run):
     assert "agents.shaping.CoverageShaping" in saved and "coef: 0.5" in saved
 
 
+@pytest.mark.slow
 def test_agents_train_trains_as_rl_zoo3_does(zoo_run, tmp_path):
     """The same config, seed and steps through agents.train: the same weights, bit for bit."""
     import torch
@@ -127,6 +129,7 @@ def test_agents_train_trains_as_rl_zoo3_does(zoo_run, tmp_path):
     assert all(torch.equal(ours[k], theirs[k]) for k in ours)
 
 
+@pytest.mark.slow
 def test_rl_zoo3_enjoy_runs_the_trained_model(zoo_run):
     result = _run(
         [
@@ -150,6 +153,7 @@ def test_rl_zoo3_enjoy_runs_the_trained_model(zoo_run):
     assert "Episode Length 100" in result.stdout, result.stdout[-2000:]
 
 
+@pytest.mark.slow
 def test_record_video_of_the_trained_model(zoo_run, tmp_path):
     # rl_zoo3.record_video has no --gym-packages: agents.zoo registers the envs and runs it unchanged
     _run(
@@ -174,6 +178,7 @@ def test_record_video_of_the_trained_model(zoo_run, tmp_path):
     assert len(videos) == 1 and videos[0].stat().st_size > 1000, videos
 
 
+@pytest.mark.slow
 def test_rl_zoo3_tunes_with_the_shipped_config(tmp_path):
     """One Optuna trial: the sampler's policy_kwargs replace the config's, the belief extractor stays (the policy's)."""
     from stable_baselines3 import PPO

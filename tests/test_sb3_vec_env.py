@@ -11,6 +11,7 @@ import seif_gym  # noqa: F401
 from agents.sb3_vec_env import NativeVecEnv
 
 
+@pytest.mark.slow
 def test_native_vec_env_equals_dummy_vec_env():
     num_envs, limit = 3, 15
     native = NativeVecEnv("SeifExplore-v1", num_envs, seed=4, env_kwargs={"max_episode_steps": limit})
@@ -53,6 +54,7 @@ def test_native_vec_env_equals_dummy_vec_env():
     reference.close()
 
 
+@pytest.mark.slow
 def test_ppo_trains_on_the_native_vec_env(tmp_path):
     from stable_baselines3 import PPO
     from stable_baselines3.common.vec_env import VecMonitor

@@ -376,6 +376,7 @@ def corridor_seif(num_landmarks: int) -> SEIF:
     return filt
 
 
+@pytest.mark.slow
 def test_memory_is_linear_in_the_map():
     small, large = corridor_seif(250), corridor_seif(1000)
     per_landmark_small = small.memory_bytes / small.num_landmarks

@@ -110,6 +110,7 @@ def test_config_entry_is_the_shipped_policys_recipe(algo, env_id, path):
 
 
 # -- agents.train ------------------------------------------------------------------------------------
+@pytest.mark.slow
 def test_agents_train_writes_a_run_rl_zoo3_reads_and_watches_the_task(tmp_path, capfd):
     out = tmp_path / "run"
     # the native vector env (no env wrapper), validation and checkpoints every rollout, nothing printed
@@ -408,6 +409,7 @@ def test_an_error_during_training_keeps_its_traceback(tmp_path, monkeypatch):
 
 
 # -- SAC and RecurrentPPO ----------------------------------------------------------------------------
+@pytest.mark.slow
 @pytest.mark.parametrize(
     "algo, algorithm, tiny",
     [
@@ -543,6 +545,7 @@ def final_map_errors(agent, seeds, env_id: str = "SeifExplore-v0") -> list[float
         env.close()
 
 
+@pytest.mark.slow
 def test_shipped_policy_loads_and_beats_random_on_ten_seeds():
     assert SHIPPED_POLICY.exists(), f"the shipped policy {SHIPPED_POLICY} is missing"
     env = gym.make("SeifExplore-v0")
@@ -555,6 +558,7 @@ def test_shipped_policy_loads_and_beats_random_on_ten_seeds():
     assert max(ppo) < np.mean(random), (ppo, random)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("label", [label for label in SHIPPED_POLICIES if label != "ppo"])
 def test_every_shipped_explorer_loads_and_beats_random_on_its_variant(label):
     """Each policy of ``agents.benchmark.SHIPPED_POLICIES`` (``ppo``: the test above), on five seeds of its task."""

@@ -48,11 +48,19 @@ def _assert_equal(a, b, where: str) -> None:
     [
         (AutoresetMode.NEXT_STEP, 1, 3, {}),
         (AutoresetMode.SAME_STEP, 1, 3, {}),
-        (AutoresetMode.NEXT_STEP, numba.config.NUMBA_NUM_THREADS, 3, {}),  # the parallel loop
-        (AutoresetMode.SAME_STEP, numba.config.NUMBA_NUM_THREADS, 40, {}),  # envs shared out over the threads
+        # the parallel loop (slow: starts numba's thread pool and compiles the parallel kernels)
+        pytest.param(AutoresetMode.NEXT_STEP, numba.config.NUMBA_NUM_THREADS, 3, {}, marks=pytest.mark.slow),
+        # envs shared out over the threads
+        pytest.param(AutoresetMode.SAME_STEP, numba.config.NUMBA_NUM_THREADS, 40, {}, marks=pytest.mark.slow),
         # the batched ESEIF, relocalizing often (a bound of 3), on one thread and on the parallel loop
         (AutoresetMode.NEXT_STEP, 1, 3, {"filter": "eseif", "max_active": 3}),
-        (AutoresetMode.SAME_STEP, numba.config.NUMBA_NUM_THREADS, 4, {"filter": "eseif", "max_active": 3}),
+        pytest.param(
+            AutoresetMode.SAME_STEP,
+            numba.config.NUMBA_NUM_THREADS,
+            4,
+            {"filter": "eseif", "max_active": 3},
+            marks=pytest.mark.slow,
+        ),
     ],
     ids=["next", "same", "next-threads", "same-threads-40", "eseif-next", "eseif-same-threads"],
 )
@@ -144,11 +152,13 @@ def _threaded_step(then: str, **variables: str) -> list[str]:
     return result.stdout.split()
 
 
+@pytest.mark.slow
 def test_threads_leave_torchs_thread_count_alone():
     """Starting numba's pool on GNU OpenMP (its default where torch is loaded) set torch's threads to 2."""
     assert _threaded_step("stay") == ["1", "True"]
 
 
+@pytest.mark.slow
 def test_threads_on_the_forksafe_layer_survive_a_fork():
     """The documented way to fork after threads: on GNU OpenMP the child is killed (exit code -15)."""
     assert _threaded_step("fork", NUMBA_THREADING_LAYER="forksafe") == ["1", "True", "0"]

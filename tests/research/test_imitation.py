@@ -107,6 +107,7 @@ def test_dagger_episodes_are_driven_by_the_learner_and_labelled_by_the_teacher()
     assert np.all(np.abs(demos.actions).max(axis=1) > 0.0)
 
 
+@pytest.mark.slow
 def test_behaviour_cloning_fits_the_actions_and_the_values(tmp_path):
     _, model = prepare(build_parser().parse_args([*SMALL, "--out", str(tmp_path)]))
     demos = collect_demonstrations(small_env, "random", [21, 22])

@@ -9,6 +9,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 import seif_gym
 
 PACKAGE = Path(seif_gym.__file__).parent
@@ -159,6 +161,7 @@ def test_no_import_circles_in_the_product_lazy_imports_included():
     assert not circles, circles
 
 
+@pytest.mark.slow
 def test_importing_every_module_of_agents_loads_no_research():
     # a package's __main__ runs its command when imported: its imports are read statically above
     modules = [name for name in _product_modules() if name.startswith("agents") and not name.endswith("__main__")]
@@ -170,5 +173,7 @@ def test_importing_every_module_of_agents_loads_no_research():
         "assert not loaded, loaded\n"
     )
     env = {**os.environ, "OPENBLAS_NUM_THREADS": "1", "MPLBACKEND": "Agg"}
-    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=600, cwd=ROOT)
+    result = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=600, cwd=ROOT
+    )
     assert result.returncode == 0, result.stderr[-3000:]

@@ -33,6 +33,7 @@ def _fail_on_three(value: int) -> int:
     return value * value
 
 
+@pytest.mark.slow
 def test_executor_keeps_task_order_and_reports_each_result():
     seen = []
     executor = Executor(workers=2)
@@ -44,7 +45,7 @@ def test_executor_keeps_task_order_and_reports_each_result():
     assert Executor().map(pow, []) == [] and Executor().kind == "serial"
 
 
-@pytest.mark.parametrize("workers", [1, 2])
+@pytest.mark.parametrize("workers", [1, pytest.param(2, marks=pytest.mark.slow)])
 def test_a_failing_task_raises_its_exception(workers):
     with pytest.raises(RuntimeError, match="task three failed"):
         Executor(workers=workers).map(_fail_on_three, [(k,) for k in range(5)])

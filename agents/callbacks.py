@@ -18,6 +18,12 @@ Both are named in the training config (``callback:`` of
     map error so far in ``best_map_error/model.zip``, with its
     ``vecnormalize.pkl`` beside it.
 
+:class:`ResumableCheckpointCallback`
+    ``agents.train``'s checkpoints: between rollouts, the model with its
+    statistics and everything else a resumed run continues from
+    (:func:`agents.checkpoints.save_checkpoint`), the other callbacks'
+    states included (their ``state_dict``; the two above have one).
+
 The metrics are those of ``python -m agents.evaluate`` (final map error,
 landmarks mapped, pose RMSE over the episode), so a validation number here
 and an evaluation there mean the same thing.
@@ -28,6 +34,7 @@ from __future__ import annotations
 import csv
 import math
 import os
+import time
 import warnings
 from collections import deque
 from collections.abc import Mapping, Sequence
@@ -42,7 +49,14 @@ from agents.checkpoints import save_with_vecnormalize
 from agents.memories import policy_memories
 from agents.protocol import VALIDATION_SEED
 
-__all__ = ["EVAL_COLUMNS", "MapErrorEvalCallback", "TaskMetricsCallback", "run_folder"]
+__all__ = [
+    "EVAL_COLUMNS",
+    "MapErrorEvalCallback",
+    "ResumableCheckpointCallback",
+    "TaskMetricsCallback",
+    "restore_callback_states",
+    "run_folder",
+]
 
 #: Columns of ``map_error_evaluations.csv``.
 EVAL_COLUMNS: tuple[str, ...] = (
@@ -117,11 +131,25 @@ class TaskMetricsCallback(BaseCallback):
         self.episodes: deque[dict[str, float]] = deque(maxlen=self.stats_window_size)
         self._squared = np.zeros(0)
         self._steps = np.zeros(0, dtype=np.int64)
+        self._restored: dict[str, Any] | None = None  # load_state_dict's, taken when training starts
 
     def _init_callback(self) -> None:
         n_envs = self.training_env.num_envs
         self._squared = np.zeros(n_envs)
         self._steps = np.zeros(n_envs, dtype=np.int64)
+        restored, self._restored = self._restored, None
+        if restored is not None and len(restored["steps"]) == n_envs:  # a resumed run's episodes under way
+            self._squared, self._steps = np.array(restored["squared"]), np.array(restored["steps"], dtype=np.int64)
+
+    def state_dict(self) -> dict[str, Any]:
+        """The episodes averaged and the sums of the episodes under way (saved with each checkpoint)."""
+        return {"episodes": list(self.episodes), "squared": self._squared.copy(), "steps": self._steps.copy()}
+
+    def load_state_dict(self, state: Mapping[str, Any]) -> None:
+        """Take :meth:`state_dict`'s ``state`` (a resumed run): the window now, the sums when training starts."""
+        self.episodes.clear()
+        self.episodes.extend(dict(episode) for episode in state["episodes"])
+        self._restored = dict(state)
 
     def _on_step(self) -> bool:
         infos: Sequence[Mapping[str, Any]] = self.locals["infos"]
@@ -267,6 +295,7 @@ class MapErrorEvalCallback(BaseCallback):
         self._next_eval = self.eval_freq
         self._last_eval: int | None = None
         self._env: gym.Env | None = None
+        self._restored: dict[str, Any] | None = None  # load_state_dict's, taken when training starts
 
     @property
     def seeds(self) -> list[int]:
@@ -304,6 +333,69 @@ class MapErrorEvalCallback(BaseCallback):
                 self.env_kwargs = {k: v for k, v in spec.kwargs.items() if k != "render_mode"}
                 self.env_kwargs.setdefault("max_episode_steps", spec.max_episode_steps)
         self._next_eval = self.num_timesteps + self.eval_freq
+        restored, self._restored = self._restored, None
+        if restored is not None:
+            self._next_eval = int(restored["next_eval"])
+            if self.save_path is not None:
+                self._restore_files(restored)
+
+    def state_dict(self) -> dict[str, Any]:
+        """Everything a resumed run needs of the validation so far (saved with each checkpoint).
+
+        Keys: ``best_map_error``, ``best_timesteps``, ``evaluations`` (the rows written), ``next_eval``
+        and ``last_eval`` (the step counts of the next and the last validation), and ``best_model`` and
+        ``best_vecnormalize``: the bytes of the best model's files as they are now (``None`` for none),
+        because a later best replaces them before a resume could look back.
+        """
+        files: dict[str, bytes | None] = {"best_model": None, "best_vecnormalize": None}
+        if self.save_path is not None and self.best_model_path.is_file():
+            files["best_model"] = self.best_model_path.read_bytes()
+            stats = self.best_model_path.with_name("vecnormalize.pkl")
+            files["best_vecnormalize"] = stats.read_bytes() if stats.is_file() else None
+        return {
+            "best_map_error": self.best_map_error,
+            "best_timesteps": self.best_timesteps,
+            "evaluations": [dict(row) for row in self.evaluations],
+            "next_eval": self._next_eval,
+            "last_eval": self._last_eval,
+            **files,
+        }
+
+    def load_state_dict(self, state: Mapping[str, Any]) -> None:
+        """Take :meth:`state_dict`'s ``state`` (a resumed run).
+
+        The best score, the rows and the last validation's step count now; when training starts, the
+        next validation's step count, the best model's files (``best_map_error/``, as they were at the
+        checkpoint) and ``map_error_evaluations.csv`` (its rows up to the checkpoint).
+        """
+        self.best_map_error = float(state["best_map_error"])
+        self.best_timesteps = state["best_timesteps"]
+        self.evaluations = [dict(row) for row in state["evaluations"]]
+        self._last_eval = state["last_eval"]
+        self._restored = dict(state)
+
+    def _restore_files(self, state: Mapping[str, Any]) -> None:
+        """The best model's files and the CSV of the rows as :meth:`state_dict` saw them."""
+        from agents.checkpoints import atomic_write
+
+        assert self.save_path is not None
+        for path, content in (
+            (self.best_model_path, state["best_model"]),
+            (self.best_model_path.with_name("vecnormalize.pkl"), state["best_vecnormalize"]),
+        ):
+            if content is None:
+                path.unlink(missing_ok=True)  # a best found after the checkpoint: the resumed run finds it again
+            elif not path.is_file() or path.read_bytes() != content:
+                path.parent.mkdir(parents=True, exist_ok=True)
+                atomic_write(path, lambda temporary, data=content: temporary.write_bytes(data))
+
+        def write(temporary: Path) -> None:
+            with open(temporary, "w", newline="") as handle:
+                writer = csv.DictWriter(handle, fieldnames=EVAL_COLUMNS)
+                writer.writeheader()
+                writer.writerows(self.evaluations)
+
+        atomic_write(self.save_path / "map_error_evaluations.csv", write)
 
     def _on_step(self) -> bool:
         if self.num_timesteps >= self._next_eval:
@@ -386,6 +478,134 @@ class MapErrorEvalCallback(BaseCallback):
             if new:
                 writer.writeheader()
             writer.writerow(row)
+
+
+class ResumableCheckpointCallback(BaseCallback):
+    """Checkpoints a run resumes from: between rollouts, every ``save_freq`` steps and at the end of training.
+
+    A checkpoint is taken when a rollout starts (after the previous rollout's
+    update) once the step count has reached the next multiple of
+    ``save_freq``, and when training ends if it has: the moment between two
+    updates, when no rollout is half collected, so that a run resumed from it
+    takes the same steps as one that went on. Each is
+    :func:`agents.checkpoints.save_checkpoint`: ``PREFIX_<N>_steps.zip`` (weights,
+    optimizer, step count), its ``VecNormalize`` statistics, the replay buffer
+    (``save_replay_buffer``), and a state file with the global random states,
+    the envs' episodes under way (:func:`agents.checkpoints.training_state`), the
+    seconds trained, and the ``state_dict()`` of each callback of ``callbacks``
+    that has one (by position and class), written last: a checkpoint is
+    complete once its state file is there.
+
+    Parameters
+    ----------
+    save_freq : int
+        Steps (all envs together) between checkpoints.
+    save_path : str or PathLike
+        The run's folder.
+    name_prefix : str, default ``"rl_model"``
+    callbacks : sequence of BaseCallback, optional
+        The run's other callbacks, whose states go with each checkpoint (the list is read at each save).
+    save_replay_buffer : bool, default False
+    verbose : int, default 0
+        1 warns once when the envs' state cannot be kept (a resumed run would start new episodes),
+        2 also prints a line per checkpoint.
+
+    Raises
+    ------
+    TypeError
+        If ``save_freq`` is not an int or ``save_path`` not a path.
+    ValueError
+        If ``save_freq`` is below 1.
+    """
+
+    def __init__(
+        self,
+        save_freq: int,
+        save_path: str | os.PathLike,
+        name_prefix: str = "rl_model",
+        callbacks: Sequence[BaseCallback] = (),
+        save_replay_buffer: bool = False,
+        verbose: int = 0,
+    ) -> None:
+        super().__init__(verbose=verbose)
+        self.save_freq = _check_int("save_freq", save_freq, 1)
+        if not isinstance(save_path, (str, os.PathLike)):
+            raise TypeError(f"save_path must be a path, got {type(save_path).__name__}")
+        self.save_path = Path(save_path)
+        self.name_prefix = name_prefix
+        self.callbacks = callbacks
+        self.save_replay_buffer = bool(save_replay_buffer)
+        #: seconds trained before this session (a resumed run's), added to this session's in each checkpoint
+        self.seconds_before = 0.0
+        self._started = time.perf_counter()
+        self._next_save = self.save_freq
+        self._last_saved: int | None = None
+
+    def _init_callback(self) -> None:
+        self.save_path.mkdir(parents=True, exist_ok=True)
+        self._next_save = (int(self.model.num_timesteps) // self.save_freq + 1) * self.save_freq
+
+    def _on_training_start(self) -> None:
+        self._started = time.perf_counter()
+
+    def _on_step(self) -> bool:
+        return True
+
+    def _on_rollout_start(self) -> None:
+        if self.model.num_timesteps >= self._next_save:
+            self.save()
+
+    def _on_training_end(self) -> None:
+        # rl-zoo3 calls the first callback's on_training_end a second time: save each moment once
+        if self.model.num_timesteps >= self._next_save and self._last_saved != self.model.num_timesteps:
+            self.save()
+
+    def callback_states(self) -> dict[str, Any]:
+        """The ``state_dict()`` of each callback of ``callbacks`` that has one, keyed ``"<position>:<class>"``."""
+        return {
+            f"{i}:{type(callback).__qualname__}": getattr(callback, "state_dict")()  # noqa: B009 (optional method)
+            for i, callback in enumerate(self.callbacks)
+            if callback is not self and callable(getattr(callback, "state_dict", None))
+        }
+
+    def save(self) -> Path:
+        """Save a checkpoint now; the model's path."""
+        from agents.checkpoints import save_checkpoint, training_state
+
+        steps = int(self.model.num_timesteps)
+        state = training_state(self.model, self.save_path)
+        if state["env_note"] is not None and self._last_saved is None and self.verbose >= 1:
+            warnings.warn(
+                f"checkpoints: a resumed run will start new episodes, not continue these: {state['env_note']}",
+                stacklevel=2,
+            )
+        state["callbacks"] = self.callback_states()
+        state["seconds"] = self.seconds_before + time.perf_counter() - self._started
+        checkpoint = save_checkpoint(
+            self.model, self.save_path, steps, state, replay_buffer=self.save_replay_buffer, prefix=self.name_prefix
+        )
+        self._last_saved = steps
+        self._next_save = (steps // self.save_freq + 1) * self.save_freq
+        if self.verbose >= 2:
+            print(f"checkpoint at {steps} steps: {checkpoint.model}")
+        return checkpoint.model
+
+
+def restore_callback_states(callbacks: Sequence[BaseCallback], states: Mapping[str, Any]) -> list[str]:
+    """Give each callback of ``callbacks`` its state of :meth:`ResumableCheckpointCallback.callback_states`.
+
+    Returns
+    -------
+    list of str
+        The keys of ``states`` no callback took (the run's callbacks differ from the checkpoint's).
+    """
+    taken = set()
+    for i, callback in enumerate(callbacks):
+        key = f"{i}:{type(callback).__qualname__}"
+        if key in states and callable(getattr(callback, "load_state_dict", None)):
+            getattr(callback, "load_state_dict")(states[key])  # noqa: B009 (optional method)
+            taken.add(key)
+    return sorted(set(states) - taken)
 
 
 def _t_half_width(values: np.ndarray, confidence: float = 0.95) -> float:

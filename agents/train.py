@@ -4,6 +4,7 @@ Usage::
 
     python -m agents.train --env SeifExplore-v0 --seed 8                    # the shipped policy's recipe
     python -m agents.train --env SeifExplore-v2 --timesteps 200000 --out runs/ppo_v2
+    python -m agents.train --resume runs/ppo_v2                              # after a kill: go on
     python -m agents.train --env SeifExplore-v0 --init-from runs/ppo_v1/best_map_error/model.zip \\
         --hyperparams learning_rate=1e-4 --timesteps 250000
 
@@ -23,7 +24,17 @@ here what it means there, and a run of either command is read by
 * checkpoints every ``--checkpoint-freq`` steps *with* their normalisation
   statistics (``rl_model_<N>_steps.zip`` beside
   ``rl_model_vecnormalize_<N>_steps.pkl``; rl-zoo3's ``--save-freq`` saves
-  the model alone);
+  the model alone), taken between rollouts (after an update, at the first
+  rollout's end at or past each multiple: ``N`` is the step count then) and
+  written whole or not at all, with a state file
+  (:class:`agents.callbacks.ResumableCheckpointCallback`);
+* ``--resume RUN``: continue a killed run from its newest complete
+  checkpoint, with its own arguments and config (``RUN/<EnvId>/args.yml``,
+  ``config.yml``), to the steps it asked for: weights, optimizer, step count
+  and schedules, statistics, the envs' episodes under way, the random
+  states, the validation's history and best model. A run resumed so ends
+  with the weights the run would have had unkilled, bit for bit, on one CPU
+  device (``docs/training``: what does not resume exactly);
 * the task's callbacks (:mod:`agents.callbacks`), also when a config lacks
   them: the task's metrics in TensorBoard and validation on fixed seeds that
   keeps ``best_map_error/model.zip`` (``--eval-freq``, ``--eval-episodes``;
@@ -57,8 +68,9 @@ A run's folder::
     best_map_error/vecnormalize.pkl   ... and its statistics
     map_error_evaluations.csv         one row per validation
     rl_model_<N>_steps.zip            checkpoints, with rl_model_vecnormalize_<N>_steps.pkl
+    rl_model_state_<N>_steps.pkl      ... and what --resume needs besides (written last)
     tb/                               TensorBoard (tensorboard --logdir DIR/tb)
-    train_time.json                   seconds and steps of model.learn
+    train_time.json                   seconds and steps of model.learn (written last: the run finished)
 
 Progress: a progress bar and SB3's log table; ``--quiet`` prints nothing
 (errors aside).
@@ -75,6 +87,7 @@ import os
 import sys
 import time
 from collections.abc import Callable, Iterator, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -241,9 +254,137 @@ def build_parser() -> argparse.ArgumentParser:
         help="glibc's malloc keeps freed memory for reuse instead of faulting in fresh pages, its peak "
         "memory held to the end (agents.allocator; default on)",
     )
+    parser.add_argument(
+        "--resume",
+        default=None,
+        metavar="RUN",
+        help="continue the killed run in the folder RUN from its newest complete checkpoint, with its own "
+        "arguments and config (only --quiet, --no-progress-bar and --[no-]keep-freed-memory go with it)",
+    )
     parser.add_argument("--quiet", action="store_true", help="print nothing: no progress bar, no log table")
     parser.add_argument("--no-progress-bar", action="store_true", help="no progress bar (the log table stays)")
     return parser
+
+
+# -- --resume ----------------------------------------------------------------------------------------
+#: The options that may go with ``--resume``: they change what is printed or how memory is held, not what is trained.
+RESUME_HARMLESS = ("resume", "quiet", "no_progress_bar", "keep_freed_memory")
+
+
+class ResumeError(ValueError):
+    """``--resume`` cannot continue the folder it names (not a run, no complete checkpoint, other options given)."""
+
+
+class RunFinished(Exception):
+    """``--resume`` of a run that finished: nothing to do."""
+
+
+@dataclass(frozen=True)
+class _Resume:
+    """What a resumed run continues from: the checkpoint, the run's config entry, its monitor logs as they were."""
+
+    checkpoint: Any  # agents.checkpoints.Checkpoint
+    config: dict[str, Any]
+    monitor_logs: dict[str, bytes]
+    skipped: list[str]
+
+
+class _RunFileLoader(yaml.SafeLoader):
+    """YAML's safe loader that also reads rl-zoo3's ``args.yml`` and ``config.yml`` (``OrderedDict`` tags) as dicts."""
+
+
+def _ordered_dict(loader: yaml.SafeLoader, node: yaml.Node) -> dict[Any, Any]:
+    (pairs,) = loader.construct_sequence(node, deep=True)
+    return dict(pairs)
+
+
+_RunFileLoader.add_constructor("tag:yaml.org,2002:python/object/apply:collections.OrderedDict", _ordered_dict)
+
+
+def _read_run_file(path: Path) -> dict[str, Any]:
+    try:
+        content = yaml.load(path.read_text(), Loader=_RunFileLoader)  # noqa: S506 (a safe loader, with one tag more)
+    except (OSError, yaml.YAMLError) as error:
+        raise ResumeError(f"--resume: {path} does not read ({error})".replace("\n", " ")) from error
+    if not isinstance(content, dict):
+        raise ResumeError(f"--resume: {path} is not a mapping")
+    return content
+
+
+def _run_arguments_file(folder: Path) -> Path:
+    """``RUN/<EnvId>/args.yml`` of the run in ``folder``."""
+    found = sorted(folder.glob("*/args.yml")) if folder.is_dir() else []
+    if len(found) != 1:
+        raise ResumeError(f"--resume: {folder} is not a training run (no <EnvId>/args.yml of agents.train in it)")
+    return found[0]
+
+
+def resume_arguments(args: argparse.Namespace) -> argparse.Namespace:
+    """The arguments of the run that ``args.resume`` names, as its ``<EnvId>/args.yml`` recorded them.
+
+    The run's own arguments, with ``--out`` its folder as it is now and ``--quiet``,
+    ``--no-progress-bar`` and ``--[no-]keep-freed-memory`` (:data:`RESUME_HARMLESS`) from ``args``.
+
+    Raises
+    ------
+    ResumeError
+        If the folder holds no run of ``agents.train``.
+    RunFinished
+        If the run finished (its ``train_time.json`` is written last).
+    """
+    folder = Path(args.resume)
+    saved = _read_run_file(_run_arguments_file(folder))
+    defaults = vars(build_parser().parse_args([]))
+    if not {"checkpoint_freq", "vec_env"} <= saved.keys():
+        raise ResumeError(f"--resume: {folder} was not trained by agents.train (its args.yml lacks its options)")
+    finished = folder / "train_time.json"
+    if finished.is_file():
+        try:
+            steps = json.loads(finished.read_text()).get("timesteps")
+        except (OSError, ValueError, AttributeError):
+            steps = None
+        raise RunFinished(
+            f"{folder} is finished ({steps} steps, final model {folder / (str(saved.get('env')) + '.zip')}): "
+            "nothing to resume"
+        )
+    values = {key: saved[key] for key in defaults if key in saved}
+    overrides = values.get("hyperparams") or {}
+    values["hyperparams"] = list(overrides.items()) if isinstance(overrides, dict) else list(overrides)
+    values.update({key: getattr(args, key) for key in RESUME_HARMLESS if hasattr(args, key)})
+    values.update(resume=str(folder), out=str(folder))
+    return argparse.Namespace(**{**defaults, **values})
+
+
+def _plan_resume(args: argparse.Namespace) -> _Resume:
+    """The checkpoint, config and logs that the resumed run ``args`` (:func:`resume_arguments`) continues from.
+
+    Raises
+    ------
+    ResumeError
+        If the run has no complete checkpoint or its ``config.yml`` is missing.
+    """
+    from agents.checkpoints import newest_complete_checkpoint, remove_temporaries
+
+    folder = Path(args.resume)
+    config_path = _run_arguments_file(folder).with_name("config.yml")
+    if not config_path.is_file():
+        raise ResumeError(f"--resume: {folder} has no {config_path.relative_to(folder)} (its config)")
+    config = _read_run_file(config_path)
+    checkpoint, skipped = newest_complete_checkpoint(folder)
+    if checkpoint is None:
+        why = f" ({'; '.join(skipped)})" if skipped else ""
+        raise ResumeError(f"--resume: {folder} has no complete checkpoint to resume from{why}")
+    remove_temporaries(folder)  # what atomic writes left when the run was killed
+    logs = {path.name: path.read_bytes() for path in folder.glob("*monitor.csv")}  # before the envs empty them
+    return _Resume(checkpoint, config, logs, skipped)
+
+
+def _given_options(argv: Sequence[str] | None) -> set[str]:
+    """The destinations of the options written on the command line ``argv`` (defaults left out)."""
+    parser = build_parser()
+    for action in parser._actions:
+        action.default = argparse.SUPPRESS
+    return set(vars(parser.parse_args(argv)))
 
 
 def _config_for(args: argparse.Namespace) -> str:
@@ -283,11 +424,13 @@ def _maybe_silent(quiet: bool) -> Iterator[None]:
 
 def _experiment_class() -> type:
     """:class:`SeifExperiment`, defined on first use: rl-zoo3 (and optuna with it) is imported only to train."""
+    from rl_zoo3 import ALGOS as ZOO_ALGOS
     from rl_zoo3.exp_manager import ExperimentManager
-    from stable_baselines3.common.callbacks import CheckpointCallback
+    from stable_baselines3.common.base_class import BaseAlgorithm
+    from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
     from stable_baselines3.common.vec_env import VecEnv, VecFrameStack, VecMonitor
 
-    from agents.callbacks import MapErrorEvalCallback, TaskMetricsCallback
+    from agents.callbacks import MapErrorEvalCallback, ResumableCheckpointCallback, TaskMetricsCallback
 
     class SeifExperiment(ExperimentManager):
         """rl-zoo3's ``ExperimentManager`` with the native vector env, paired checkpoints and the task's callbacks.
@@ -301,8 +444,9 @@ def _experiment_class() -> type:
         callbacks: list[Any]  # set by ExperimentManager.__init__
         env_kwargs: dict[str, Any]  # set by ExperimentManager.__init__, settled by _preprocess_hyperparams
 
-        def __init__(self, args: argparse.Namespace) -> None:
+        def __init__(self, args: argparse.Namespace, resume: _Resume | None = None) -> None:
             self.options = args
+            self.resume = resume  # --resume: the checkpoint, config and logs the run continues from
             self.native = args.vec_env == "native"
             # what rl-zoo3 writes to args.yml and its enjoy/record_video read back (env_kwargs)
             zoo_args = argparse.Namespace(**{k: v for k, v in vars(args).items() if k not in ("hyperparams",)})
@@ -332,6 +476,19 @@ def _experiment_class() -> type:
                 self.save_path = str(Path(args.out))
                 self.params_path = os.path.join(self.save_path, self.env_name)
             self.tensorboard_log = os.path.join(self.save_path, "tb")
+
+        def read_hyperparameters(self) -> tuple[dict[str, Any], dict[str, Any]]:
+            """The config's entry with the overrides; a resumed run's own, as its ``config.yml`` recorded them."""
+            if self.resume is None:
+                return super().read_hyperparameters()
+            hyperparams = copy.deepcopy(self.resume.config)
+            if "env_kwargs" in hyperparams and self.env_kwargs and self._eval_env_kwargs_args is None:
+                self.eval_env_kwargs = hyperparams["env_kwargs"]  # as rl-zoo3 does
+            return hyperparams, dict(sorted(hyperparams.items()))
+
+        def _save_config(self, saved_hyperparams: dict[str, Any]) -> None:
+            if self.resume is None:  # a resumed run keeps the config, arguments and command it was started with
+                super()._save_config(saved_hyperparams)
 
         def _preprocess_hyperparams(
             self, hyperparams: dict[str, Any]
@@ -410,16 +567,18 @@ def _experiment_class() -> type:
         def create_callbacks(self) -> None:
             super().create_callbacks()  # the progress bar
             options = self.options
+            checkpoints = None
             if options.checkpoint_freq > 0:
-                self.callbacks.append(
-                    CheckpointCallback(
-                        save_freq=max(options.checkpoint_freq // self.n_envs, 1),
-                        save_path=self.save_path,
-                        name_prefix="rl_model",  # rl-zoo3's name: enjoy --load-checkpoint N finds it
-                        save_vecnormalize=True,
-                        verbose=0,
-                    )
+                checkpoints = ResumableCheckpointCallback(
+                    save_freq=options.checkpoint_freq,
+                    save_path=self.save_path,
+                    name_prefix="rl_model",  # rl-zoo3's name: enjoy --load-checkpoint N finds it
+                    save_replay_buffer=issubclass(ZOO_ALGOS[self.algo], OffPolicyAlgorithm),
+                    verbose=0 if options.quiet else 1,
                 )
+                if self.resume is not None:
+                    checkpoints.seconds_before = float(self.resume.checkpoint.state.get("seconds", 0.0))
+                self.callbacks.append(checkpoints)
             evaluations = [c for c in self.callbacks if isinstance(c, MapErrorEvalCallback)]
             if options.eval_freq == -1:
                 self.callbacks = [c for c in self.callbacks if not isinstance(c, MapErrorEvalCallback)]
@@ -442,6 +601,53 @@ def _experiment_class() -> type:
                     callback.verbose = 0
             if not any(isinstance(c, TaskMetricsCallback) for c in self.callbacks):
                 self.callbacks.append(TaskMetricsCallback())
+            if checkpoints is not None:
+                checkpoints.callbacks = self.callbacks  # their states go with each checkpoint
+
+        # -- resuming --------------------------------------------------------------------------------
+        def resume_training(self, model: BaseAlgorithm) -> str:
+            """Load the checkpoint of ``--resume`` into ``model`` and the callbacks (the random states: :meth:`learn`).
+
+            Returns
+            -------
+            str
+                What became of the envs (:func:`agents.checkpoints.restore_training_state`).
+            """
+            from agents.callbacks import restore_callback_states
+            from agents.checkpoints import restore_training_state
+
+            assert self.resume is not None
+            note = restore_training_state(model, self.resume.checkpoint, self.resume.monitor_logs)
+            restore_callback_states(self.callbacks, self.resume.checkpoint.state.get("callbacks", {}))
+            return note
+
+        def learn(self, model: BaseAlgorithm) -> None:
+            """rl-zoo3's ``learn``; a resumed run continues its step count to ``n_timesteps`` from the saved random states."""
+            if self.resume is None:
+                super().learn(model)
+                return
+            from agents.checkpoints import restore_rng
+
+            kwargs: dict[str, Any] = {"reset_num_timesteps": False}  # the step count, and the schedules, go on
+            if self.log_interval > -1:
+                kwargs["log_interval"] = self.log_interval
+            elif self.log_interval < -1:
+                kwargs["log_interval"] = None
+            if self.callbacks:
+                kwargs["callback"] = self.callbacks
+            restore_rng(self.resume.checkpoint.state["rng"])  # last: nothing may draw between here and the rollout
+            try:
+                model.learn(max(self.n_timesteps - model.num_timesteps, 0), **kwargs)
+            except KeyboardInterrupt:  # as rl-zoo3: the model is saved
+                pass
+            finally:
+                if self.callbacks:
+                    self.callbacks[0].on_training_end()
+                try:
+                    assert model.env is not None
+                    model.env.close()
+                except EOFError:
+                    pass
 
         # -- fine-tuning -----------------------------------------------------------------------------
         def init_from(self, model: Any, path: str | os.PathLike) -> Path | None:
@@ -534,6 +740,10 @@ def prepare(args: argparse.Namespace, before_learn: BeforeLearn | None = None) -
     experiment : SeifExperiment
     model : stable_baselines3.common.base_class.BaseAlgorithm
 
+    With ``--resume RUN`` the arguments are the run's (:func:`resume_arguments`), its checkpoint is
+    loaded into the model, the envs and the callbacks (the random states when it learns), and neither
+    its ``--init-from`` nor ``before_learn`` applies: the run goes on from its checkpoint.
+
     Raises
     ------
     ValueError
@@ -541,14 +751,22 @@ def prepare(args: argparse.Namespace, before_learn: BeforeLearn | None = None) -
         the config or an override is not one rl-zoo3 takes.
     FileNotFoundError
         If ``--conf-file`` or ``--init-from`` does not exist.
+    ResumeError
+        If ``--resume`` names no run of ``agents.train``, or one without a complete checkpoint.
+    RunFinished
+        If ``--resume`` names a run that finished.
     """
     from stable_baselines3.common.utils import set_random_seed
 
+    resume = None
+    if args.resume:
+        args = resume_arguments(args)
+        resume = _plan_resume(args)
     if args.env.split(":")[-1] not in gym.registry:
         raise ValueError(f"--env: unknown env {args.env!r}")
     mixture_ids(args.env, args.mix_env, args.env_kwargs)
     set_random_seed(args.seed)  # as rl_zoo3.train does before building the experiment
-    experiment = _experiment_class()(args)
+    experiment = _experiment_class()(args, resume)
     with _maybe_silent(args.quiet):
         model, _ = experiment.setup_experiment()
     if args.vec_env == "native" and not experiment.uses_native() and not args.quiet:
@@ -556,6 +774,17 @@ def prepare(args: argparse.Namespace, before_learn: BeforeLearn | None = None) -
             "agents.train: the config wraps single envs (env_wrapper), so the envs run in a DummyVecEnv",
             file=sys.stderr,
         )
+    if resume is not None:  # the checkpoint's weights, not --init-from's, and no hook: the run goes on
+        envs = experiment.resume_training(model)
+        if not args.quiet:
+            skipped = "".join(f"; passed over: {why}" for why in resume.skipped)
+            print(
+                f"agents.train: resuming {args.resume} at {model.num_timesteps} of {experiment.n_timesteps} steps "
+                f"from {resume.checkpoint.model.name} (envs: "
+                f"{'their episodes go on' if envs == 'restored' else 'new episodes, ' + envs}){skipped}",
+                file=sys.stderr,
+            )
+        return experiment, model
     if args.init_from:
         stats = experiment.init_from(model, args.init_from)
         if not args.quiet:
@@ -644,14 +873,25 @@ def train(args: argparse.Namespace, before_learn: BeforeLearn | None = None) -> 
 
 
 def _learn_and_save(args: argparse.Namespace, experiment: Any, model: Any) -> Path:
-    """:func:`train` after :func:`prepare`: learn, save the model and the wall time, report."""
+    """:func:`train` after :func:`prepare`: learn, save the model and the wall time, report.
+
+    ``train_time.json``, written last, marks the run finished; a resumed run's seconds count those
+    trained up to its checkpoint too, and it records the step count it was resumed from.
+    """
+    from agents.checkpoints import atomic_write
+
+    resume = getattr(experiment, "resume", None)
     started = time.perf_counter()
     experiment.learn(model)
     elapsed = time.perf_counter() - started
     with _maybe_silent(args.quiet):
         experiment.save_trained_model(model)
     folder = Path(experiment.save_path)
-    (folder / "train_time.json").write_text(json.dumps({"seconds": elapsed, "timesteps": int(model.num_timesteps)}))
+    record: dict[str, Any] = {"seconds": elapsed, "timesteps": int(model.num_timesteps)}
+    if resume is not None:
+        record["seconds"] += float(resume.checkpoint.state.get("seconds", 0.0))
+        record["resumed_from"] = int(resume.checkpoint.steps)
+    atomic_write(folder / "train_time.json", lambda temporary: temporary.write_text(json.dumps(record)))
     if not args.quiet:
         print(
             f"trained {model.num_timesteps} steps in {elapsed:.0f} s ({model.num_timesteps / elapsed:.0f} steps/s); "
@@ -670,6 +910,12 @@ def run(args: argparse.Namespace, before_learn: BeforeLearn | None = None) -> in
         keep_freed_memory()  # before torch allocates: the update's tensors then reuse the heap's pages
     try:
         experiment, model = prepare(args, before_learn)
+    except ResumeError as error:  # --resume of what cannot be resumed: one line, exit 2 (a usage error)
+        print(f"agents.train: {error}", file=sys.stderr)
+        return 2
+    except RunFinished as finished:
+        print(f"agents.train: --resume: {finished}", file=sys.stderr)
+        return 0
     except (ValueError, FileNotFoundError) as error:  # a bad argument or config: one line, no traceback
         raise SystemExit(f"agents.train: {error}") from error
     # an error during training (numpy's LinAlgError is a ValueError too) keeps its traceback
@@ -678,8 +924,23 @@ def run(args: argparse.Namespace, before_learn: BeforeLearn | None = None) -> in
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """The command line: :func:`run` on ``argv`` parsed by :func:`build_parser`."""
-    return run(build_parser().parse_args(argv))
+    """The command line: :func:`run` on ``argv`` parsed by :func:`build_parser`.
+
+    ``--resume RUN`` takes the run's own arguments: any other option but those of
+    :data:`RESUME_HARMLESS` is refused (exit status 2).
+    """
+    args = build_parser().parse_args(argv)
+    if args.resume is not None:
+        others = sorted(_given_options(argv) - set(RESUME_HARMLESS))
+        if others:
+            names = ", ".join("--" + name.replace("_", "-") for name in others)
+            print(
+                f"agents.train: --resume continues {args.resume} with its own arguments; drop {names} "
+                "(only --quiet, --no-progress-bar and --[no-]keep-freed-memory go with it)",
+                file=sys.stderr,
+            )
+            return 2
+    return run(args)
 
 
 if __name__ == "__main__":

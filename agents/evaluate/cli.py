@@ -55,7 +55,7 @@ def add_batch_arguments(parser: argparse.ArgumentParser) -> None:
                         "by default the episodes run as the sub-envs of native vector envs, the agent acting "
                         "for all of them in one call, where the agent and the env allow it)")  # fmt: skip
     parser.add_argument("--batch-size", type=int, default=DEFAULT_BATCH_SIZE, metavar="N",
-                        help="most sub-envs of one batch (default %(default)s)")  # fmt: skip
+                        help="most sub-envs of one batch (default %(default)s; 1: as --no-batch)")  # fmt: skip
     parser.add_argument("--threads", type=int, default=1, metavar="N",
                         help="BLAS and torch threads per process (default %(default)s: the rows are then the same "
                         "batched or not and on every executor)")  # fmt: skip

@@ -318,7 +318,8 @@ def evaluate_agents(
         envs (:func:`~agents.evaluate.batched.batch_env`) run one episode at a time, as with ``False``;
         progress says so once per agent (``verbose``).
     batch_size : int
-        Most sub-envs of one batch (a task's episodes run in as few batches as that allows).
+        Most sub-envs of one batch (a task's episodes run in as few batches as that allows); 1: one
+        episode at a time, as ``batch=False``.
     threads : int
         BLAS and torch threads of each task (:func:`limited_threads`; a saved policy's
         :attr:`~agents.sb3_agent.SB3Agent.threads`); with one, the rows are the same on every

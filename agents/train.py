@@ -486,6 +486,20 @@ def _experiment_class() -> type:
                 self.eval_env_kwargs = hyperparams["env_kwargs"]  # as rl-zoo3 does
             return hyperparams, dict(sorted(hyperparams.items()))
 
+        def save_trained_model(self, model: BaseAlgorithm) -> None:
+            """rl-zoo3's final model, replay buffer and statistics, each file written whole or not at all."""
+            from agents.checkpoints import atomic_write
+
+            print(f"Saving to {self.save_path}")
+            atomic_write(Path(self.save_path) / f"{self.env_name}.zip", lambda temporary: model.save(temporary))
+            if hasattr(model, "save_replay_buffer") and self.save_replay_buffer:
+                path = Path(self.save_path) / "replay_buffer.pkl"
+                atomic_write(path, lambda temporary: model.save_replay_buffer(temporary))
+            vec_normalize = model.get_vec_normalize_env()
+            if self.normalize and vec_normalize is not None:
+                path = Path(self.params_path) / "vecnormalize.pkl"
+                atomic_write(path, lambda temporary: vec_normalize.save(str(temporary)))
+
         def _save_config(self, saved_hyperparams: dict[str, Any]) -> None:
             if self.resume is None:  # a resumed run keeps the config, arguments and command it was started with
                 super()._save_config(saved_hyperparams)

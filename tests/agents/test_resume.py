@@ -206,6 +206,19 @@ def test_resume_of_what_is_not_a_killed_run(runs, tmp_path, capsys):
     assert err.count("\n") == 1 and "no complete checkpoint" in err
 
 
+def test_a_run_killed_after_its_last_checkpoint_saves_its_final_model(runs, tmp_path):
+    """Killed between the checkpoint at the last step and the final model: the resume trains nothing, saves it."""
+    run = _copy(runs["whole"], tmp_path)
+    final = run / "SeifExplore-v2.zip"
+    for path in (run / "train_time.json", final, run / "SeifExplore-v2" / "vecnormalize.pkl"):
+        path.unlink()
+    assert main(["--resume", str(run), "--quiet"]) == 0
+    assert _same_weights(_weights(final), _weights(runs["whole"] / "SeifExplore-v2.zip"))
+    assert (run / "SeifExplore-v2" / "vecnormalize.pkl").is_file()
+    assert json.loads((run / "train_time.json").read_text())["resumed_from"] == TOTAL
+    assert _rows(run) == _rows(runs["whole"])  # the last validation is not run twice
+
+
 @pytest.mark.slow
 def test_a_run_killed_by_sigkill_resumes_to_the_same_model(tmp_path):
     """Two processes: one left alone, one sent SIGKILL once its second checkpoint exists, then resumed."""

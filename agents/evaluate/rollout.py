@@ -165,7 +165,7 @@ def make_evaluation_env(env_id: str, env_kwargs: Mapping[str, Any]) -> gym.Env:
     No metric of an evaluation reads ``info["pose_nees"]``, whose exact pose
     marginal factorises the information matrix every step (its cost:
     ``docs/performance_notes.md``); everything else the env computes is the
-    same (``tests/test_agents.py``). ``env_kwargs`` may still ask for it.
+    same (``tests/agents/test_agents.py``). ``env_kwargs`` may still ask for it.
 
     Raises
     ------

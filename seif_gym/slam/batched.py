@@ -7,7 +7,7 @@ compiled kernel per step (:func:`~seif_gym.slam._kernels.seif_predict_many`,
 :func:`~seif_gym.slam._kernels.seif_update_many`): no Python object per filter
 in the step loop. Each filter computes exactly what a
 :class:`~seif_gym.slam.seif.SEIF` with the same options computes, the same
-kernels in the same order (``tests/test_batched.py`` compares every array
+kernels in the same order (``tests/slam/test_batched.py`` compares every array
 after every step, bit for bit).
 
 The arrays are sized once: ``capacity`` landmarks per filter (the number of

@@ -88,7 +88,7 @@ class AckermannLaserModel:
     ``G = d g / d pose = [[1, 0, -delta_y], [0, 1, delta_x], [0, 0, 1]]``
     (``delta`` depends on the pose only through ``phi``, and ``d delta_x / d phi
     = -delta_y``, ``d delta_y / d phi = delta_x``), the same structure as the
-    velocity model's. ``tests/test_car_model.py`` checks ``G`` and ``V``
+    velocity model's. ``tests/slam/test_car_model.py`` checks ``G`` and ``V``
     against finite differences.
     """
 

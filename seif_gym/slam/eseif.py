@@ -31,7 +31,7 @@ marginalized pose carried about the *current* pose (odometry and past
 measurements, given the map) is discarded, and ``z_beta`` informs only the new
 pose, not the map through the old one. Discarding information can only make
 the filter less certain: the ESEIF is conservative with respect to the EIF
-(see :class:`ESEIF`, Notes, for the argument; ``tests/test_eseif.py`` checks
+(see :class:`ESEIF`, Notes, for the argument; ``tests/slam/test_eseif.py`` checks
 ``Sigma_ESEIF - Sigma_EIF >= 0`` along a run).
 
 Every step costs time in the size of the active set and of the scan, never in

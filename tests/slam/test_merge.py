@@ -18,7 +18,7 @@ from seif_gym.slam.association import AssociationAudit, Associator, rigid_submap
 from seif_gym.slam.base import UnknownLandmarkError
 from seif_gym.slam.information import InformationStore
 from seif_gym.slam.scenarios import FIDELITY_SCENARIOS, make_loop_run
-from tests.test_step_failures import InjectedFailure, assert_same_state, failing, state_of
+from tests.slam.test_step_failures import InjectedFailure, assert_same_state, failing, state_of
 
 
 def run_filters(steps: int = 120) -> tuple[dict, object]:
@@ -274,7 +274,7 @@ def test_revisable_association_meets_the_targets_on_the_loop_runs(filter_name):
     ``rectangle-narrow``; joint preset: 98.78%, 6.20%), likelihood 99.73%, 0.85%. Asserted: the issue's targets
     (>= 99.5%, <= 2%), revisable no worse than joint and likelihood no worse than revisable.
     """
-    from tests.test_association import loop_audit
+    from tests.slam.test_association import loop_audit
 
     audits = {preset: [loop_audit(name, 0, filter_name, preset) for name in FIDELITY_SCENARIOS]
               for preset in ("joint", "revisable", "likelihood")}  # fmt: skip
@@ -302,7 +302,7 @@ def test_likelihood_preset_refuses_the_false_closure_of_circle_large_seed_5():
     end). Ranked by likelihood, the two unmapped trees are new landmarks and the closure waits
     (``likelihood``: 53 wrong decisions, 0.4 m off at the end).
     """
-    from tests.test_association import loop_audit
+    from tests.slam.test_association import loop_audit
 
     revisable, likelihood = (loop_audit("circle-large", 5, "EKF", preset) for preset in ("revisable", "likelihood"))
     assert revisable.errors > 200

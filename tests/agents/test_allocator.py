@@ -87,7 +87,7 @@ def test_training_computes_the_same_weights_with_and_without_it(tmp_path):
     assert kept.keys() == plain.keys()
     for name in kept:
         assert torch.equal(kept[name], plain[name]), name
-    # and the runs learned: the checkpoint at 256 steps (the first rollout, before any update) differs
+    # and the runs learned: the checkpoint at 256 steps (taken after the first update) differs
     from stable_baselines3 import PPO
 
     before = PPO.load(tmp_path / "kept" / "rl_model_256_steps.zip", device="cpu").policy.state_dict()

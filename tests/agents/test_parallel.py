@@ -144,7 +144,7 @@ def test_a_worker_ends_when_its_parent_is_killed(tmp_path):
         "if __name__ == '__main__':\n"
         "    Executor(workers=2).map(task, [(sys.argv[1],), (sys.argv[1] + '.2',)])\n"
     )
-    parent = subprocess.Popen([sys.executable, str(script), str(pid_file)], cwd=str(Path(__file__).parents[1]))
+    parent = subprocess.Popen([sys.executable, str(script), str(pid_file)], cwd=str(Path(__file__).parents[2]))
     try:
         deadline = time.monotonic() + 60
         while not pid_file.exists() or not pid_file.read_text():

@@ -12,7 +12,7 @@ import pytest
 
 pytest.importorskip("rl_zoo3", reason="rl_zoo3 is in the train extra")
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = Path(__file__).resolve().parents[2]
 CONFIG = ROOT / "agents" / "hyperparams" / "ppo.yml"
 ENV_ID = "SeifExplore-v1"
 #: one rollout of the shipped entry (8 envs x 512 steps); 100-step episodes so that some end in it

@@ -307,7 +307,7 @@ def test_bench_vector_stages_split_the_native_step():
     import importlib.util
     from pathlib import Path
 
-    path = Path(__file__).resolve().parents[1] / "benchmarks" / "bench_vector.py"
+    path = Path(__file__).resolve().parents[2] / "benchmarks" / "bench_vector.py"
     spec = importlib.util.spec_from_file_location("bench_vector", path)
     assert spec is not None and spec.loader is not None
     bench = importlib.util.module_from_spec(spec)

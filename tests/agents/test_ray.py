@@ -284,7 +284,7 @@ def test_seif_gym_and_agents_import_without_ray():
         "import sys; import seif_gym, agents, agents.evaluate, agents.baselines; "
         "assert 'ray' not in sys.modules, sorted(m for m in sys.modules if m.startswith('ray'))"
     )
-    subprocess.run([sys.executable, "-c", code], check=True, cwd=Path(__file__).resolve().parents[1])
+    subprocess.run([sys.executable, "-c", code], check=True, cwd=Path(__file__).resolve().parents[2])
 
 
 # -- the harnesses on the cluster (agents.parallel) ----------------------------------------------------

@@ -49,7 +49,9 @@ def test_pretrained_task_is_the_leaderboards_best_shipped_policy_and_acts_throug
     state, start = None, True
     for _ in range(12):
         action, _ = agent.predict(observation, deterministic=True)
-        expected, state = reference.predict(observation, state=state, episode_start=np.array([start]), deterministic=True)
+        expected, state = reference.predict(
+            observation, state=state, episode_start=np.array([start]), deterministic=True
+        )
         start = False
         np.testing.assert_array_equal(action, expected)
         assert action.shape == (2,) and env.action_space.contains(action)
@@ -94,7 +96,9 @@ def test_shipped_files_hold_what_acting_needs_only(name):
     assert optimizer["state"] == {}  # Adam's moments: only for going on training
     critic = [key for key in weights if key.startswith(("mlp_extractor.value_net.", "value_net.", "lstm_critic."))]
     assert critic and all(not weights[key].any() for key in critic)  # the value function, zeroed
-    actor = [key for key in weights if key.startswith(("pi_features_extractor.", "action_net.", "mlp_extractor.policy"))]
+    actor = [
+        key for key in weights if key.startswith(("pi_features_extractor.", "action_net.", "mlp_extractor.policy"))
+    ]
     assert actor and all(weights[key].any() for key in actor)
 
 

@@ -10,16 +10,16 @@ import numpy as np
 import pytest
 from policy_entry_checks import assert_acts_as_trained  # tests/ is on sys.path under pytest
 
-import research.coverage_memory
 import agents.entries
 import agents.memories
+import research.coverage_memory
 import seif_gym  # noqa: F401  (registers the envs)
 from agents.baselines import Geometry
-from research.coverage_memory import UNSWEPT, CoverageMemory, CoverageMemoryObservation, uses_coverage_memory
 from agents.evaluate import SB3Agent, run_episode
 from agents.memories import PolicyMemories, has_policy_entries, policy_memories, policy_view
 from agents.networks import BeliefPolicy
 from agents.time_feature import TIME_LEFT, TimeLeftClock, TimeLeftObservation
+from research.coverage_memory import UNSWEPT, CoverageMemory, CoverageMemoryObservation, uses_coverage_memory
 
 
 @pytest.mark.parametrize("module", [research.coverage_memory, agents.entries, agents.memories])

@@ -11,10 +11,10 @@ import pytest
 import research.residual
 import seif_gym  # noqa: F401  (registers the envs)
 from agents.baselines import make_agent
-from research.coverage_memory import CoverageMemoryObservation
 from agents.evaluate import SB3Agent, run_episode
 from agents.memories import policy_memories
 from agents.networks import BeliefPolicy
+from research.coverage_memory import CoverageMemoryObservation
 from research.residual import PLANNER_ACTION, PlannerResidual, PlannerResidualAction, uses_planner_action
 
 LARGE = "SeifExploreLarge-v2"

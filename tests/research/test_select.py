@@ -11,8 +11,8 @@ import pytest
 import torch
 
 import seif_gym  # noqa: F401
-from agents.protocol import HELD_OUT_SEED
 from agents.checkpoints import behaviour_fingerprint, save_with_vecnormalize, vecnormalize_path
+from agents.protocol import HELD_OUT_SEED
 from research.select import best_of_runs, candidates, main, save_selected, select_checkpoints
 
 TINY = {"num_landmarks": 10, "max_episode_steps": 20}

@@ -12,8 +12,8 @@ import pytest
 import torch
 
 import seif_gym  # noqa: F401
-from research import ship as ship_module
 from agents.checkpoints import save_with_vecnormalize, vecnormalize_path
+from research import ship as ship_module
 from research.ship import OPTIMIZER_ENTRY, empty_optimizer_moments, main, ship
 
 TINY = {"num_landmarks": 10, "max_episode_steps": 20}

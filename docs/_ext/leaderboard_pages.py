@@ -9,9 +9,11 @@ landmarks mapped, the paired difference to the best baseline and the
 verdict), a line saying which agents beat the best baseline, the seeds and
 episode counts of the run and the seif_gym version it ran, from the json. The
 intro says what the run was, on which commit, what changed; ``after`` holds
-what is not in the json (a task measured apart from the run). A plot of a task's
-map error over time, ``docs/images/leaderboard/<id>_map_error.png``, is shown
-under its table where the file exists.
+what is not in the json (a task measured apart from the run). Under each table
+a plot drawn from the same rows (:func:`plot_task`: every agent's final map
+error with its 95% interval, baselines and learned policies told apart, the
+best baseline's mean as a line), and the run's map error over time,
+``docs/images/leaderboard/<id>_map_error.png``, where that file exists.
 
 The pages are generated and kept out of git; the json files are the record.
 """
@@ -119,6 +121,8 @@ def page(data: dict[str, Any], intro: str | None, docs: Path, page_dir: Path, af
         verdict = verdict_line(task_rows)
         if verdict:
             out += [verdict, ""]
+        plot_task(task_rows, env_id, docs / page_dir / "_plots" / f"{env_id}_final_map_error.png")
+        out += [f"![{env_id}: final map error of every agent](_plots/{env_id}_final_map_error.png)", ""]
         plot = docs / "images" / "leaderboard" / f"{env_id}_map_error.png"
         if plot.is_file():
             relative = Path(*([".."] * len(page_dir.parts))) / plot.relative_to(docs)
@@ -126,6 +130,33 @@ def page(data: dict[str, Any], intro: str | None, docs: Path, page_dir: Path, af
     if after is not None:
         out += ["```{include} " + after, "```", ""]
     return "\n".join(out).rstrip() + "\n"
+
+
+def plot_task(rows: list[dict[str, Any]], env_id: str, path: Path) -> None:
+    """Draw ``rows`` (one task's, sorted) as horizontal bars of the final map error with their 95% intervals."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    from matplotlib.figure import Figure
+
+    labels = [str(r["agent"]) for r in rows]
+    means = [float(r["final_map_error"]) for r in rows]
+    errors = [float(r["final_map_error_ci95"]) for r in rows]
+    colours = ["#8c8c8c" if r.get("kind") == "baseline" else "#1f6fd1" for r in rows]
+    figure = Figure(figsize=(6.4, 0.32 * len(rows) + 1.0), dpi=100)
+    axes = figure.add_subplot()
+    positions = list(range(len(rows)))[::-1]
+    axes.barh(positions, means, xerr=errors, color=colours, height=0.6, capsize=2, error_kw={"linewidth": 0.8})
+    axes.set_yticks(positions, labels, fontsize=8)
+    best = [r for r in rows if r.get("best_baseline") == r.get("agent")]
+    if best:
+        axes.axvline(float(best[0]["final_map_error"]), color="#e8402a", linewidth=0.8, linestyle="--")
+    axes.set_xlabel("final map error (m) ± 95%: grey baselines, blue learned, red line the best baseline")
+    axes.xaxis.label.set_fontsize(7)
+    axes.set_title(env_id, fontsize=9)
+    figure.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    figure.savefig(path)
 
 
 def write_leaderboards(app: Sphinx) -> None:

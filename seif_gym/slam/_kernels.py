@@ -909,27 +909,16 @@ def _recover_one(robot_info, robot_links, landmark_info, neighbour_index, neighb
 
 
 @njit(cache=True)
-def seif_update_one(robot_info, robot_links, landmark_info, neighbour_index, neighbour_info, neighbour_count,
-                    information_vector, mean, block_position, active, counters, is_active, last_observed,
-                    id_to_index, ids, queue, queued, queue_state, ranges, bearings, measured, noise_info,
-                    max_active, recovery_landmarks, budget, relaxation, tolerance):  # fmt: skip
-    """``SEIF.update_trusted`` (known ids, wavefront recovery) of one filter of a batch.
+def _sparsify_stalest(robot_info, robot_links, landmark_info, neighbour_index, neighbour_info, neighbour_count,
+                      information_vector, mean, block_position, active, counters, is_active, last_observed,
+                      update_count, max_active):  # fmt: skip
+    """The SEIF's sparsification after an update: the active landmarks observed longest ago leave.
 
-    ``counters = [num_landmarks, active_count, update_count, round_robin]`` (updated in place);
-    ``id_to_index[id]`` is the state order of landmark ``id`` (-1: unmapped), ``ids`` the inverse.
+    Never one observed in update ``update_count``; at most ``max_active`` stay active (``< 0``: all).
+    ``counters[1]`` (the active count) and ``active`` / ``is_active`` are updated in place.
     """
-    indices = _map_ids(mean, counters, id_to_index, ids, ranges, bearings, measured)
-    counters[2] += 1
-    update_count = counters[2]
-    _incorporate_one(robot_info, robot_links, landmark_info, information_vector, mean, active, counters, is_active,
-                     last_observed, indices, ranges, bearings, noise_info)  # fmt: skip
-    # wavefront recovery: the next passive landmarks in round robin, then the robot block and the queue
-    _recover_one(robot_info, robot_links, landmark_info, neighbour_index, neighbour_info, neighbour_count,
-                 information_vector, mean, block_position, active, counters, is_active, queue, queued, queue_state,
-                 recovery_landmarks, budget, relaxation, tolerance)  # fmt: skip
     count = counters[1]
     act = active[:count]
-    # sparsification: the landmarks observed longest ago leave, never one observed in this update
     if max_active < 0 or count <= max_active:
         return
     candidates = np.empty(count, dtype=np.int64)
@@ -963,6 +952,31 @@ def seif_update_one(robot_info, robot_links, landmark_info, neighbour_index, nei
     for p in range(kept):
         active[p] = block[p]
     counters[1] = kept
+
+
+@njit(cache=True)
+def seif_update_one(robot_info, robot_links, landmark_info, neighbour_index, neighbour_info, neighbour_count,
+                    information_vector, mean, block_position, active, counters, is_active, last_observed,
+                    id_to_index, ids, queue, queued, queue_state, ranges, bearings, measured, noise_info,
+                    max_active, recovery_landmarks, budget, relaxation, tolerance):  # fmt: skip
+    """``SEIF.update_trusted`` (known ids, wavefront recovery) of one filter of a batch.
+
+    ``counters = [num_landmarks, active_count, update_count, round_robin]`` (updated in place);
+    ``id_to_index[id]`` is the state order of landmark ``id`` (-1: unmapped), ``ids`` the inverse.
+    """
+    indices = _map_ids(mean, counters, id_to_index, ids, ranges, bearings, measured)
+    counters[2] += 1
+    update_count = counters[2]
+    _incorporate_one(robot_info, robot_links, landmark_info, information_vector, mean, active, counters, is_active,
+                     last_observed, indices, ranges, bearings, noise_info)  # fmt: skip
+    # wavefront recovery: the next passive landmarks in round robin, then the robot block and the queue
+    _recover_one(robot_info, robot_links, landmark_info, neighbour_index, neighbour_info, neighbour_count,
+                 information_vector, mean, block_position, active, counters, is_active, queue, queued, queue_state,
+                 recovery_landmarks, budget, relaxation, tolerance)  # fmt: skip
+    # sparsification: the landmarks observed longest ago leave, never one observed in this update
+    _sparsify_stalest(robot_info, robot_links, landmark_info, neighbour_index, neighbour_info, neighbour_count,
+                      information_vector, mean, block_position, active, counters, is_active, last_observed,
+                      update_count, max_active)  # fmt: skip
 
 
 @njit(cache=True)
@@ -1424,41 +1438,9 @@ def seif_update_mapped(robot_info, robot_links, landmark_info, neighbour_index, 
                                     queued, queue_state, budget, relaxation, tolerance)  # fmt: skip
     rewrap_heading(robot_info, robot_links, information_vector, mean, act)
     # sparsification, as in seif_update_one
-    count = counters[1]
-    act = active[:count]
-    if max_active < 0 or count <= max_active:
-        return
-    candidates = np.empty(count, dtype=np.int64)
-    c = 0
-    for p in range(count):
-        if last_observed[active[p]] != update_count:
-            candidates[c] = p
-            c += 1
-    remove_count = min(count - max_active, c)
-    if remove_count == 0:
-        return
-    order = np.argsort(last_observed[act[candidates[:c]]], kind="mergesort")
-    remove = np.zeros(count, dtype=np.bool_)
-    for r in range(remove_count):
-        remove[candidates[order[r]]] = True
-    block = np.empty(count, dtype=np.int64)
-    kept = 0
-    for p in range(count):
-        if not remove[p]:
-            block[kept] = active[p]
-            kept += 1
-    q = kept
-    for p in range(count):
-        if remove[p]:
-            block[q] = active[p]
-            q += 1
-    sparsify(robot_info, robot_links, landmark_info, neighbour_index, neighbour_info, neighbour_count,
-             information_vector, mean, block_position, block, kept)  # fmt: skip
-    for p in range(kept, count):
-        is_active[block[p]] = False
-    for p in range(kept):
-        active[p] = block[p]
-    counters[1] = kept
+    _sparsify_stalest(robot_info, robot_links, landmark_info, neighbour_index, neighbour_info, neighbour_count,
+                      information_vector, mean, block_position, active, counters, is_active, last_observed,
+                      update_count, max_active)  # fmt: skip
 
 
 @njit(cache=True)

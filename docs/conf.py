@@ -44,7 +44,6 @@ extensions = [
     "task_pages",
     "leaderboard_pages",
     # the toctree's pages that other pages are still being written for
-    "pending_pages",
 ]
 
 source_suffix = {".md": "markdown", ".rst": "restructuredtext"}
@@ -106,10 +105,3 @@ html_theme_options = {
     "navigation_with_keys": True,
 }
 
-# -- pages being written ---------------------------------------------------------------------------
-# Toctree entries whose pages do not exist yet are left out while they are missing (docs/_ext/pending_pages.py).
-# A page missing and not named here is a build error; a page is named here only while it is being written.
-pending_pages: list[str] = [
-    # the performance notes moved out of the docstrings, being written beside this change
-    "performance_notes",
-]

@@ -1,9 +1,9 @@
 """Test-session settings.
 
-One BLAS thread: the filters' matrices are small, and on a 2-core machine
-OpenBLAS's threads cost far more in synchronisation than they gain (a 53x53
-covariance took 30 ms with two threads, 0.09 ms with one). Set before numpy
-is imported by any test module.
+One BLAS thread: the filters' matrices are small, so BLAS threads cost more in
+synchronisation than they gain (docs/performance_notes.md), and results do not
+depend on the machine's core count. Set before numpy is imported by any test
+module.
 """
 
 import os

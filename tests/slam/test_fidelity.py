@@ -1,4 +1,4 @@
-"""The approximate filters are faithful on loop-closing runs (issue: SEIF and ESEIF accuracy).
+"""The approximate filters are faithful on loop-closing runs: the SEIF and the ESEIF against the exact filters on identical data.
 
 On the benchmark's family of runs (``seif_gym.slam.scenarios.FIDELITY_SCENARIOS``,
 seeds 0-2, known correspondences, identical data for every filter), as

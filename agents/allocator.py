@@ -8,7 +8,7 @@ tensors of tens of MiB over and over, so without this every page of each is
 mapped, zeroed and faulted in anew. :func:`keep_freed_memory` tells glibc to
 serve every block from its heap (``M_MMAP_MAX = 0``) and to keep what is freed
 there (``M_TRIM_THRESHOLD`` at its maximum). Results are the same bit for bit
-(``tests/test_allocator.py``); the process keeps its peak heap until it exits.
+(``tests/agents/test_allocator.py``); the process keeps its peak heap until it exits.
 What it saves is in ``docs/performance_notes.md``.
 
 ``python -m agents.train`` calls it before building the run

@@ -194,7 +194,7 @@ def fused_lstm_sequence(
     The outputs and final states equal the reference's: the same gate
     arithmetic per step, but the input products of all steps are one matrix
     product instead of one per step, which a BLAS may round differently
-    (``tests/test_networks.py`` checks them equal). One-step sequences, as when acting, run the very
+    (``tests/agents/test_networks.py`` checks them equal). One-step sequences, as when acting, run the very
     operations of the reference, so actions are equal bit for bit. The
     gradients of the LSTM's weights equal the reference's to float32 round-off
     only, since the fused backward sums the steps' contributions in another

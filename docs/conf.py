@@ -104,4 +104,3 @@ html_theme_options = {
     "source_repository": "",
     "navigation_with_keys": True,
 }
-

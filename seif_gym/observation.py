@@ -146,7 +146,7 @@ def _belief_map(
     """The (3, size, size) uint8 egocentric raster (0..255); row 0 is ahead, column 0 is left.
 
     The readable reference: the encoders call :func:`_fill_belief_map`, which computes the same
-    bits with the per-row and per-column products hoisted (``tests/test_world.py`` compares them).
+    bits with the per-row and per-column products hoisted (``tests/env/test_world.py`` compares them).
     """
     out = np.zeros((3, size, size), dtype=np.uint8)
     cells = coverage.shape[0]

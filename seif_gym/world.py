@@ -342,7 +342,7 @@ class BatchedWorld:
     """:class:`World` times ``num_worlds``, stepped and measured by compiled kernels.
 
     Every world ``e`` computes exactly what a :class:`World` with the same
-    landmarks, start and generators computes (``tests/test_world.py``). The
+    landmarks, start and generators computes (``tests/env/test_world.py``). The
     motion and sensor noise come from each world's own generators, drawn
     ahead (:class:`_NormalStream`).
 

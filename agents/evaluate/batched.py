@@ -4,7 +4,7 @@
 sub-env ``e`` of a :class:`~seif_gym.envs.vector.SeifExploreVectorEnv` runs the episode of ``seeds[e]``
 from ``reset(seed=seeds[e])``, and one ``predict`` call acts for every sub-env. Its rows equal
 :func:`~agents.evaluate.rollout.run_episode`'s but for ``decision_time_ms``: the vector env equals
-single envs bit for bit (``tests/test_vector_env.py``), the observation-only baselines act on each row
+single envs bit for bit (``tests/env/test_vector_env.py``), the observation-only baselines act on each row
 alone, and a saved policy runs inside :meth:`~agents.sb3_agent.SB3Agent.exact_batches`, where each
 row's forward pass has the bits of that row alone. :func:`batch_refusal` says which agents cannot be
 run so; :func:`batch_env` builds the vector env, or says why the configuration is not batched.

@@ -10,7 +10,7 @@ of a reference function: gather and scatter of
 :class:`~seif_gym.slam.seif.CompiledSEIFBackend`); the ESEIF's
 :func:`~seif_gym.slam.eseif.marginalize_robot`; and the batched steps of
 :class:`~seif_gym.slam.batched.BatchedSEIF` built from the same kernels.
-``tests/test_kernels.py`` checks each against its reference. Why compiled: the blocks are small
+``tests/slam/test_kernels.py`` checks each against its reference. Why compiled: the blocks are small
 (19 x 19 for eight active landmarks), so a numpy version spends most of its
 time in call overhead, not arithmetic.
 

@@ -34,7 +34,7 @@ without the journal that lets a filter undo a failed step (a scratch copy is
 thrown away) and with no Python object per copy. Any other filter goes
 through :func:`expected_rollouts_reference`, which deep-copies the filter once
 per control and calls its ``predict_trusted`` and ``update_trusted``. Both give the same numbers, bit for bit
-(``tests/test_rollout.py``): the compiled path computes every value with the
+(``tests/slam/test_rollout.py``): the compiled path computes every value with the
 same operations in the same order, and leaves the angles ``atan2`` to numpy,
 whose vectorised ``arctan2`` can round differently from the C library's.
 Neither changes the filter given.

@@ -28,7 +28,7 @@ through one backend, chosen once from its ``implementation`` option:
 :class:`CompiledSEIFBackend` (the default: the compiled twins of these
 functions, all in :mod:`seif_gym.slam._kernels`) or
 :class:`ReferenceSEIFBackend` (these functions on gathered blocks); the tests
-check the two equal (``tests/test_kernels.py``, ``tests/test_seif.py``).
+check the two equal (``tests/slam/test_kernels.py``, ``tests/slam/test_seif.py``).
 """
 
 from __future__ import annotations
@@ -250,7 +250,7 @@ def exact_marginal_covariance(store: InformationStore, state_indices: IntArray,
     by a compiled kernel (O(n^3), at most a ``(3 + 2 dense_up_to)``-square
     matrix); above, a sparse LU (O(n) to O(n^1.5)).
     Per-step callers (the env's ``info["pose_nees"]``, single or batched) pay
-    this; the filter's own steps never call it. ``tests/test_seif.py`` checks
+    this; the filter's own steps never call it. ``tests/slam/test_seif.py`` checks
     both paths against the inverse of the dense matrix.
     """
     if store.num_landmarks <= dense_up_to:
@@ -575,7 +575,7 @@ class SEIFBackend(abc.ABC):
 
     :class:`CompiledSEIFBackend` calls the kernels of :mod:`seif_gym.slam._kernels` on the store's
     arrays; :class:`ReferenceSEIFBackend` gathers a dense block, applies this module's reference
-    function and scatters it back. The tests check the two equal (``tests/test_seif.py``).
+    function and scatters it back. The tests check the two equal (``tests/slam/test_seif.py``).
     """
 
     #: The motion update writes the store only after its last computation: a failed one leaves the

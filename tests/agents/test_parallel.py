@@ -1,6 +1,6 @@
 """The harnesses' executors (agents.parallel): same rows serially and on local processes; failures surface.
 
-The Ray backend is tested on a two-node loopback cluster in tests/test_ray.py.
+The Ray backend is tested on a two-node loopback cluster in tests/agents/test_ray.py.
 """
 
 from __future__ import annotations

@@ -1,6 +1,6 @@
 """The env's motion and sensor models: Thrun's or per-second motion noise, constant or range-dependent range noise.
 
-Recording and bit-exact replay with these models are in tests/test_episodes.py (its ``CALIBRATED`` cases).
+Recording and bit-exact replay with these models are in tests/env/test_episodes.py (its ``CALIBRATED`` cases).
 """
 
 from __future__ import annotations

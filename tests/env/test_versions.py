@@ -13,7 +13,7 @@ OpenBLAS kernel family, for every x86-64 family OpenBLAS has. To record a
 family (for example an ARM machine's), run 0.1 on it::
 
     git worktree add /tmp/seif_gym_0_1 0da2cee
-    PYTHONPATH=/tmp/seif_gym_0_1 python tests/test_versions.py
+    PYTHONPATH=/tmp/seif_gym_0_1 python tests/env/test_versions.py
 
 which prints the kernel architecture and the five digests of 0.1
 (``OPENBLAS_CORETYPE=<name>`` forces a family on a CPU that can run it; that

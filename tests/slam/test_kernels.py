@@ -1,6 +1,6 @@
 """Each filter step runs the same on both backends, and each compiled kernel equals its reference.
 
-``tests/test_seif.py`` compares the block kernels (gather, scatter, motion, measurement, sparsification,
+``tests/slam/test_seif.py`` compares the block kernels (gather, scatter, motion, measurement, sparsification,
 amortized and wavefront recovery) with the reference functions; ``tests/slam/test_eseif.py`` the ESEIF's.
 Here: every method of the two SEIF (and ESEIF) backends on copies of one busy store, and the kernels
 that have no reference function against the mathematics they compute (inverses, traces, the motion

@@ -20,11 +20,15 @@ from seif_gym.slam.noise_models import PerSecondVelocityMotionModel
 from seif_gym.type_aliases import FloatArray
 from seif_gym.validation import as_count
 
-__all__ = ["LAYOUTS", "WorldConfig", "World", "BatchedWorld", "make_landmarks"]
+__all__ = ["LAYOUTS", "MAX_ARENA_SIZE", "WorldConfig", "World", "BatchedWorld", "make_landmarks"]
 
 
 #: Landmark layouts that :func:`make_landmarks` generates; ``"fixed"`` (the given ``landmark_positions``) is the other.
 LAYOUTS = ("uniform", "clustered", "loop")
+
+#: Largest ``arena_size`` (metres) a :class:`WorldConfig` accepts: the env's coverage grid has
+#: ``(arena_size / coverage_resolution)^2`` cells, so the side bounds its memory.
+MAX_ARENA_SIZE = 1000.0
 
 
 @dataclass(frozen=True)
@@ -58,16 +62,27 @@ class WorldConfig:
     landmark_positions: tuple[tuple[float, ...], ...] | None = None
 
     def __post_init__(self) -> None:
-        if not (isinstance(self.arena_size, (int, float)) and math.isfinite(self.arena_size) and self.arena_size > 0):
-            raise ValueError(f"arena_size must be a positive number, got {self.arena_size!r}")
+        if isinstance(self.arena_size, bool) or not isinstance(self.arena_size, (int, float, np.integer)):
+            raise TypeError(f"arena_size must be a real number, got {type(self.arena_size).__name__}")
+        if not (math.isfinite(self.arena_size) and 0 < self.arena_size <= MAX_ARENA_SIZE):
+            raise ValueError(
+                f"arena_size must be a positive number of at most {MAX_ARENA_SIZE} m, got {self.arena_size!r}"
+            )
         if self.layout not in (*LAYOUTS, "fixed"):
             raise ValueError(f"layout must be one of {(*LAYOUTS, 'fixed')}, got {self.layout!r}")
         if isinstance(self.num_landmarks, bool) or not isinstance(self.num_landmarks, (int, np.integer)):
             raise TypeError(f"num_landmarks must be an int, got {type(self.num_landmarks).__name__}")
         if not 1 <= self.num_landmarks <= 10_000:
             raise ValueError(f"num_landmarks must be in [1, 10000], got {self.num_landmarks}")
-        if not (isinstance(self.wall_margin, (int, float)) and 0 <= self.wall_margin < self.arena_size / 4):
-            raise ValueError(f"wall_margin must be in [0, arena_size/4), got {self.wall_margin!r}")
+        if not (
+            isinstance(self.wall_margin, (int, float)) and math.isfinite(self.wall_margin) and self.wall_margin >= 0
+        ):
+            raise ValueError(f"wall_margin must be a non-negative number, got {self.wall_margin!r}")
+        if not self.wall_margin < self.arena_size / 4:
+            raise ValueError(
+                f"arena_size must be more than 4 * wall_margin = {4 * self.wall_margin} m (the landmarks keep "
+                f"wall_margin from each wall and the robot starts in the middle half), got {self.arena_size!r}"
+            )
         if self.arena_extent is not None:
             extent = _float_tuple(self.arena_extent, "arena_extent")
             if len(extent) != 2 or not all(0 < side <= self.arena_size for side in extent):

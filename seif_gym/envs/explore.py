@@ -46,6 +46,15 @@ __all__ = [
 
 REWARDS = ("map_error", "information_gain")
 
+#: Most landmarks the env accepts (:class:`~seif_gym.world.WorldConfig` alone takes more): a step's cost
+#: grows with the landmarks each scan sees, through the dense block over their Markov blankets that the
+#: observation inverts; ten times the largest registered task (120) keeps a step on the order of a second or less.
+MAX_LANDMARKS = 1000
+
+#: Most cells along each side of the swept-area grid (``ceil(arena_size / coverage_resolution)``):
+#: the grid is one byte a cell, so this bounds it at 16 MiB.
+MAX_COVERAGE_CELLS = 4096
+
 
 class Measurements(NamedTuple):
     """One step's measurements: ranges (m), bearings (rad, robot frame) and landmark ids."""
@@ -330,9 +339,9 @@ class SeifExploreEnv(gym.Env):
 
     | Argument | Default | Meaning |
     |---|---|---|
-    | `arena_size` | 20.0 | side of the square arena, metres |
+    | `arena_size` | 20.0 | side of the square arena, metres (more than 4 m, at most `seif_gym.world.MAX_ARENA_SIZE` = 1000) |
     | `layout` | `"uniform"` | `"uniform"`, `"clustered"`, `"loop"` or `"fixed"` (`seif_gym.world.make_landmarks`) |
-    | `num_landmarks` | 30 | landmarks in the arena |
+    | `num_landmarks` | 30 | landmarks in the arena (at most `MAX_LANDMARKS` = 1000: a step's cost grows with the landmarks each scan sees) |
     | `arena_extent` | `None` | `(width, height)` of a walled rectangle centred in the square (each at most `arena_size`; the observation's frame stays the square) |
     | `landmark_positions` | `None` | with `layout="fixed"`: the `num_landmarks` landmark positions `(x, y)` |
     | `sensor_range` | 5.0 | metres |
@@ -356,7 +365,7 @@ class SeifExploreEnv(gym.Env):
     | `wall_penalty` | 0.005 | per step in contact with the wall |
     | `divergence_threshold` | 5.0 | pose error that ends the episode, metres |
     | `nearest_landmarks`, `map_size`, `map_extent`, `std_scale` | 8, 40, 8.0, 1.0 | observation shape (`ObservationConfig`) |
-    | `coverage_resolution` | 0.5 | cell size of the swept-area grid, metres |
+    | `coverage_resolution` | 0.5 | cell size of the swept-area grid, metres (at most `MAX_COVERAGE_CELLS` = 4096 cells along the arena's side) |
     | `measure_time` | `False` | fill `info["step_time"]` with the wall-clock seconds spent in the filter (otherwise 0.0: wall-clock time would make seeded episodes irreproducible) |
     | `exact_pose_nees` | `True` | fill `info["pose_nees"]` (otherwise NaN, and nothing else changes): the exact pose marginal factorises Ω every step, which on maps of more than 60 landmarks costs more than the rest of the step; `agents.train` and the evaluation tools, which never read it, turn it off |
     | `render_mode` | `None` | `"rgb_array"` or `"human"` |
@@ -437,6 +446,18 @@ class SeifExploreEnv(gym.Env):
             std_scale=std_scale,
             coverage_resolution=coverage_resolution,
         )
+        if self.world_config.num_landmarks > MAX_LANDMARKS:
+            raise ValueError(
+                f"num_landmarks must be at most MAX_LANDMARKS = {MAX_LANDMARKS} (a step's cost grows with the "
+                f"landmarks each scan sees), got {self.world_config.num_landmarks}"
+            )
+        cells = math.ceil(self.world_config.arena_size / self.observation_config.coverage_resolution)
+        if cells > MAX_COVERAGE_CELLS:
+            raise ValueError(
+                f"arena_size / coverage_resolution = {self.world_config.arena_size} / "
+                f"{self.observation_config.coverage_resolution} gives a coverage grid of {cells} cells a side, more than "
+                f"MAX_COVERAGE_CELLS = {MAX_COVERAGE_CELLS}: use a smaller arena_size or a coarser coverage_resolution"
+            )
         self.motion, self.sensor = make_models({**asdict(self.robot_config), **asdict(self.sensor_config)})
         # validate the filter options once, at construction
         make_filter(self.filter_config.filter, self.motion, self.sensor, np.zeros(3), **self._filter_options())
@@ -486,6 +507,23 @@ class SeifExploreEnv(gym.Env):
     def reset(
         self, *, seed: int | None = None, options: dict[str, Any] | None = None
     ) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+        """Start an episode; ``options`` must be ``None`` or empty (the env accepts no reset options).
+
+        Raises
+        ------
+        TypeError
+            If ``options`` is not a mapping.
+        ValueError
+            If ``options`` has any key; nothing is reset then.
+        """
+        if options is not None:
+            if not isinstance(options, Mapping):
+                raise TypeError(f"options must be a dict or None, got {type(options).__name__}")
+            if options:
+                raise ValueError(
+                    f"options has unknown key(s) {sorted(map(str, options))}: SeifExploreEnv.reset accepts no options "
+                    "(pass None or {}); the episode's set-up is fixed by the constructor's arguments"
+                )
         super().reset(seed=seed)
         # one generator per source of randomness, all drawn from the env's seeded generator
         layout_rng, start_rng, motion_rng, sensor_rng = (
@@ -527,7 +565,16 @@ class SeifExploreEnv(gym.Env):
 
     def step(self, action: ArrayLike) -> tuple[dict[str, np.ndarray], float, bool, bool, dict[str, Any]]:
         world, filt = self._require_state("step")
-        action = np.asarray(action, dtype=np.float64)
+        if action is None or isinstance(action, (str, bytes)):
+            raise TypeError(
+                f"action must be 2 numbers in the action space {self.action_space}, got {type(action).__name__}"
+            )
+        try:
+            action = np.asarray(action, dtype=np.float64)
+        except (TypeError, ValueError) as error:
+            raise TypeError(
+                f"action must be 2 numbers in the action space {self.action_space}, got {type(action).__name__}"
+            ) from error
         if action.shape != (2,):
             raise ValueError(f"action must have shape (2,), got {action.shape}")
         if not (math.isfinite(action[0]) and math.isfinite(action[1])):

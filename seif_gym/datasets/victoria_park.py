@@ -26,7 +26,9 @@ are in ``docs/data/victoria_park.md``), from ``data=`` (``--data``), else from
   pose after every odometry step and every scan; ``landmarks`` (M, 2) the
   final map; plus ``landmark_ids``, ``scan_time``, ``scan_elapsed``,
   ``scan_landmarks``, ``total_seconds``, ``cpu_seconds``, ``rmse``,
-  ``gps_rotation``, ``gps_translation``), a plot of the aligned trajectory and
+  ``gps_rotation``, ``gps_translation``; when fewer than
+  :data:`MIN_GPS_FIXES` GPS fixes overlap the run, ``rmse`` is NaN and
+  ``rmse_note`` says why, and there is no alignment), a plot of the aligned trajectory and
   map over the GPS with the time per step, and prints the time per step, the
   total time, the landmarks mapped and the RMSE against the GPS.
 
@@ -380,6 +382,11 @@ class GpsError:
         return np.asarray(points, dtype=np.float64) @ self.rotation.T + self.translation
 
 
+#: Fewest GPS fixes :func:`gps_error` fits: a rigid 2-D alignment has 3 parameters, and with 2 fixes its one
+#: residual degree of freedom (the difference of two distances) is near zero on any short drive.
+MIN_GPS_FIXES = 3
+
+
 def gps_error(data: VictoriaPark, time: FloatArray, positions: FloatArray, *, jump: float = 1.0) -> GpsError:
     """RMSE of an estimated trajectory against the GPS after a rigid 2-D alignment.
 
@@ -398,6 +405,8 @@ def gps_error(data: VictoriaPark, time: FloatArray, positions: FloatArray, *, ju
     kept, and the rotation and translation that best map the estimate onto
     them (:func:`rigid_alignment`, no scale) are fitted on those same pairs.
     No residual-based trimming: a fix is dropped only for a GPS fault.
+    Fewer than :data:`MIN_GPS_FIXES` fixes raise a ``ValueError``: the fit
+    would be degenerate and its RMSE meaningless.
     The GPS antenna is not at the laser; its lever arm (not documented) adds
     a heading-dependent error that no rigid alignment removes.
     """
@@ -408,8 +417,10 @@ def gps_error(data: VictoriaPark, time: FloatArray, positions: FloatArray, *, ju
     keep = gps_inliers(data, jump=jump) & span
     gps_time = gps.time[keep]
     target = gps.positions[keep]
-    if len(gps_time) < 2:
-        raise ValueError("fewer than two GPS fixes overlap the trajectory")
+    if len(gps_time) < MIN_GPS_FIXES:
+        raise ValueError(
+            f"only {len(gps_time)} GPS fix(es) overlap the trajectory, a rigid 2-D fit needs at least {MIN_GPS_FIXES}"
+        )
     source = np.column_stack([np.interp(gps_time, time, positions[:, 0]), np.interp(gps_time, time, positions[:, 1])])
     rotation, translation = rigid_alignment(source, target)
     residuals = np.hypot(*(source @ rotation.T + translation - target).T)
@@ -504,6 +515,7 @@ class RunResult:
     warm_up_seconds: float
     association: AssociationStats
     error: GpsError | None = None
+    error_note: str = ""  # why ``error`` is None (the RMSE against the GPS is not available)
 
     @property
     def seconds_per_step(self) -> float:
@@ -511,7 +523,8 @@ class RunResult:
         return self.total_seconds / max(self.odometry_steps, 1)
 
     def save(self, path: str | os.PathLike[str]) -> None:
-        extra: dict[str, Any] = {}
+        """Write the run as ``.npz``; without a GPS fit, ``rmse`` is NaN and ``rmse_note`` says why."""
+        extra: dict[str, Any] = {"rmse": np.float64(np.nan), "rmse_note": np.str_(self.error_note or "not computed")}
         if self.error is not None:
             extra = {
                 "rmse": np.float64(self.error.rmse),
@@ -575,6 +588,14 @@ def run(
     blas_threads : int or None
         Calls :func:`seif_gym.threads.limit_blas_threads` first (process-wide); ``None`` leaves BLAS alone.
 
+    Raises
+    ------
+    ValueError
+        ``filter_name`` unknown; or (a ``DataFormatError``, naming the file
+        and the array) ``data`` has no odometry or GPS, or odometry, scan or
+        GPS times that go back, with the first offending index. Checked before
+        anything runs.
+
     Notes
     -----
     Events are processed in time order. An odometry sample sets the control
@@ -591,6 +612,7 @@ def run(
 
     if filter_name not in FILTERS:
         raise ValueError(f"filter must be one of {tuple(FILTERS)}, got {filter_name!r}")
+    _check_order(data)
     if blas_threads is not None:
         limit_blas_threads(blas_threads)
     odo, scans = data.odometry, data.scans
@@ -626,9 +648,22 @@ def run(
     )
     try:
         result.error = gps_error(data, times, poses[:, :2])
-    except ValueError:
-        result.error = None
+    except ValueError as error:
+        result.error, result.error_note = None, str(error)
     return result
+
+
+def _check_order(data: VictoriaPark) -> None:
+    """DataFormatError naming the file and array if ``data`` (perhaps not from :func:`load`) cannot be run."""
+    for name, times in (("odometry.time", data.odometry.time), ("gps.time", data.gps.time)):
+        if len(times) == 0:
+            raise DataFormatError(f"{data.path}: {name} is empty")
+    for name, times in (
+        ("odometry.time", data.odometry.time), ("scans.time", data.scans.time), ("gps.time", data.gps.time)
+    ):  # fmt: skip
+        back = np.flatnonzero(np.diff(np.asarray(times, dtype=np.float64)) < 0)
+        if len(back):
+            raise DataFormatError(f"{data.path}: {name} is not sorted (index {back[0] + 1} goes back in time)")
 
 
 def _setup(data: VictoriaPark, filter_name: str, config: RunConfig) -> tuple[SlamFilter, Associator]:
@@ -866,7 +901,7 @@ def summary(result: RunResult) -> str:
             f"{result.error.outliers} outliers dropped)"
         )
     else:
-        lines.append("RMSE vs GPS         n/a (fewer than two GPS fixes overlap the run)")
+        lines.append(f"RMSE vs GPS         n/a ({result.error_note or 'not computed'})")
     return "\n".join(lines)
 
 

@@ -884,10 +884,12 @@ def _incorporate_one(robot_info, robot_links, landmark_info, information_vector,
 
 
 @njit(cache=True)
-def _recover_one(robot_info, robot_links, landmark_info, neighbour_index, neighbour_info, neighbour_count,
-                 information_vector, mean, block_position, active, counters, is_active, queue, queued, queue_state,
-                 recovery_landmarks, budget, relaxation, tolerance):  # fmt: skip
-    """``SEIF._recover_mean`` (wavefront): the next passive landmarks in round robin, the robot block, the queue."""
+def _recovery_seeds(counters, is_active, recovery_landmarks):
+    """The wavefront recovery's seeds: the passive landmarks among the next ``recovery_landmarks`` in round robin.
+
+    ``counters = [num_landmarks, active_count, update_count, round_robin]``; the round-robin position
+    ``counters[3]`` advances by the landmarks looked at (in place).
+    """
     n = counters[0]
     batch = min(recovery_landmarks, n)
     seeds = np.empty(batch, dtype=np.int64)
@@ -899,10 +901,19 @@ def _recover_one(robot_info, robot_links, landmark_info, neighbour_index, neighb
             s += 1
     if batch > 0:
         counters[3] = (counters[3] + batch) % n
+    return seeds[:s]
+
+
+@njit(cache=True)
+def _recover_one(robot_info, robot_links, landmark_info, neighbour_index, neighbour_info, neighbour_count,
+                 information_vector, mean, block_position, active, counters, is_active, queue, queued, queue_state,
+                 recovery_landmarks, budget, relaxation, tolerance):  # fmt: skip
+    """``SEIF._recover_mean`` (wavefront): the next passive landmarks in round robin, the robot block, the queue."""
+    seeds = _recovery_seeds(counters, is_active, recovery_landmarks)
     act = active[: counters[1]]
-    log_size = (s + act.shape[0] + budget) * (2 + neighbour_index.shape[1]) + 1
+    log_size = (seeds.shape[0] + act.shape[0] + budget) * (2 + neighbour_index.shape[1]) + 1
     recover_mean_wavefront(robot_info, robot_links, landmark_info, neighbour_index, neighbour_info, neighbour_count,
-                           information_vector, mean, block_position, act, seeds[:s], queue, queued, queue_state,
+                           information_vector, mean, block_position, act, seeds, queue, queued, queue_state,
                            budget, relaxation, tolerance, np.empty(log_size, np.int8), np.empty(log_size, np.int64),
                            np.empty((log_size, 2)), np.zeros(1, np.int64))  # fmt: skip
     rewrap_heading(robot_info, robot_links, information_vector, mean, act)
@@ -1420,21 +1431,10 @@ def seif_update_mapped(robot_info, robot_links, landmark_info, neighbour_index, 
     update_count = counters[2]
     _incorporate_one(robot_info, robot_links, landmark_info, information_vector, mean, active, counters, is_active,
                      last_observed, indices, ranges, bearings, noise_info)  # fmt: skip
-    # _recover_one's seeds: the next passive landmarks in round robin
-    n = counters[0]
-    batch = min(recovery_landmarks, n)
-    seeds = np.empty(batch, dtype=np.int64)
-    s = 0
-    for k in range(batch):
-        j = (counters[3] + k) % n
-        if not is_active[j]:
-            seeds[s] = j
-            s += 1
-    if batch > 0:
-        counters[3] = (counters[3] + batch) % n
+    seeds = _recovery_seeds(counters, is_active, recovery_landmarks)
     act = active[: counters[1]]
     recover_mean_wavefront_unlogged(robot_info, robot_links, landmark_info, neighbour_index, neighbour_info,
-                                    neighbour_count, information_vector, mean, block_position, act, seeds[:s], queue,
+                                    neighbour_count, information_vector, mean, block_position, act, seeds, queue,
                                     queued, queue_state, budget, relaxation, tolerance)  # fmt: skip
     rewrap_heading(robot_info, robot_links, information_vector, mean, act)
     # sparsification, as in seif_update_one

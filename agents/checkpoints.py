@@ -42,12 +42,15 @@ from typing import Any
 
 import numpy as np
 
+from seif_gym._atomic import atomic_write, remove_temporaries
+
 __all__ = [
     "CHECKPOINT_PREFIX",
     "Checkpoint",
     "atomic_write",
     "behaviour_fingerprint",
     "checkpoint_files",
+    "remove_temporaries",
     "load_vecnormalize_stats",
     "newest_complete_checkpoint",
     "read_checkpoint",
@@ -292,58 +295,6 @@ _TRAINING_STATE = (
 )
 #: Attributes of a model that SB3 leaves out of its ``.zip`` and a resume needs (sb3-contrib's RecurrentPPO).
 _MODEL_EXTRAS = ("_last_lstm_states",)
-
-
-def atomic_write(path: str | os.PathLike, write: Any) -> Path:
-    """Write a file whole or not at all: ``write(temporary)`` fills a file beside ``path``, then it replaces ``path``.
-
-    The temporary file (``.NAME.PID.tmp`` in the same folder, so the rename stays on one file system) is
-    flushed to disk before :func:`os.replace` puts it in place, so a process killed at any moment leaves
-    either the previous ``path`` or the new one, never a part of it (a leftover temporary file at most,
-    which :func:`remove_temporaries` clears).
-
-    Parameters
-    ----------
-    path : str or PathLike
-        The file to write.
-    write : callable
-        ``write(temporary: Path)`` writes the whole content to ``temporary``.
-
-    Returns
-    -------
-    Path
-        ``path``.
-
-    Raises
-    ------
-    TypeError
-        If ``path`` is not a path or ``write`` not callable.
-    """
-    if not isinstance(path, (str, os.PathLike)):
-        raise TypeError(f"path must be a path, got {type(path).__name__}")
-    if not callable(write):
-        raise TypeError(f"write must be callable, got {type(write).__name__}")
-    target = Path(path)
-    temporary = target.with_name(f".{target.name}.{os.getpid()}.tmp")
-    try:
-        write(temporary)
-        with open(temporary, "rb") as handle:
-            os.fsync(handle.fileno())
-        os.replace(temporary, target)
-    except BaseException:
-        temporary.unlink(missing_ok=True)
-        raise
-    return target
-
-
-def remove_temporaries(folder: str | os.PathLike) -> list[Path]:
-    """Delete the temporary files :func:`atomic_write` left in ``folder`` and its subfolders when killed; those removed."""
-    removed = []
-    for temporary in Path(folder).rglob(".*.tmp"):
-        if temporary.is_file():
-            temporary.unlink()
-            removed.append(temporary)
-    return removed
 
 
 def checkpoint_files(folder: str | os.PathLike, steps: int, prefix: str = CHECKPOINT_PREFIX) -> dict[str, Path]:

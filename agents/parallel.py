@@ -15,8 +15,15 @@ agent is built inside the task). :meth:`Executor.map` runs them
   already initialised Ray connection (``ray.init``) is used as it is.
 
 and returns the results in task order whatever order they finish in, calling
-``on_result`` as each one arrives (the harness's progress). So a harness's
-rows are the same on every backend; only measured times differ.
+``on_result`` once per task as each one arrives (the harness's progress). So
+a harness's rows are the same on every backend; only measured times differ.
+
+On Ray a task survives the loss of the node or worker process that runs it:
+Ray runs it again elsewhere (up to ``retries`` times; a finished task's
+result lost with its node is recomputed the same way), and since a task's
+result depends only on its arguments, the rerun gives the same result. Only
+system failures are retried: an exception raised by the task's own code
+(a bug, a bad argument) fails the map at once, with that exception.
 
 Ray is imported only by the Ray backend (the optional ``ray`` extra). The
 tasks' code must be importable on every node: install the project there
@@ -39,6 +46,8 @@ __all__ = ["Executor", "add_arguments", "from_arguments", "chunks"]
 
 #: A task: the positional arguments of the mapped function.
 Task = tuple[Any, ...]
+#: Reruns of a Ray task whose worker process or node died (Ray's own default ``max_retries``).
+DEFAULT_RETRIES = 3
 
 
 def _exit_with_parent(parent: int, period: float = 0.5) -> None:
@@ -91,6 +100,10 @@ class Executor:
     ray : str, optional
         ``"auto"`` (the cluster this machine belongs to) or a cluster's
         ``HOST:PORT``; ``None``: no Ray.
+    retries : int
+        With ``ray``: how many times Ray reruns a task whose worker process
+        or node died (Ray's ``max_retries``; 0: a node loss fails the map).
+        Exceptions raised by the task itself are never retried.
 
     Attributes
     ----------
@@ -101,7 +114,8 @@ class Executor:
     Raises
     ------
     ValueError
-        If ``workers`` is not a positive int, or ``ray`` is not a non-empty string.
+        If ``workers`` is not a positive int, ``ray`` is not a non-empty string, or ``retries`` is not
+        an int >= 0.
 
     Examples
     --------
@@ -110,13 +124,16 @@ class Executor:
     [8, 9]
     """
 
-    def __init__(self, workers: int = 1, ray: str | None = None) -> None:
+    def __init__(self, workers: int = 1, ray: str | None = None, retries: int = DEFAULT_RETRIES) -> None:
         if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
             raise ValueError(f"workers must be a positive int, got {workers!r}")
         if ray is not None and (not isinstance(ray, str) or not ray.strip()):
             raise ValueError(f"ray must be 'auto' or a cluster address HOST:PORT, got {ray!r}")
+        if isinstance(retries, bool) or not isinstance(retries, int) or retries < 0:
+            raise ValueError(f"retries must be an int >= 0, got {retries!r}")
         self.workers = int(workers)
         self.ray = ray.strip() if ray is not None else None
+        self.retries = int(retries)
         self.placements: list[str] = []
 
     @property
@@ -128,7 +145,7 @@ class Executor:
 
     def __repr__(self) -> str:
         if self.ray is not None:
-            return f"Executor(ray={self.ray!r})"
+            return f"Executor(ray={self.ray!r}, retries={self.retries})"
         return f"Executor(workers={self.workers})"
 
     def slots(self) -> int:
@@ -143,7 +160,13 @@ class Executor:
         counts: dict[str, int] = {}
         for place in self.placements:
             counts[place] = counts.get(place, 0) + 1
-        return {"backend": self.kind, "workers": self.workers, "ray": self.ray, "tasks_per_node": counts}
+        return {
+            "backend": self.kind,
+            "workers": self.workers,
+            "ray": self.ray,
+            "retries": self.retries if self.ray is not None else None,
+            "tasks_per_node": counts,
+        }
 
     # -- running ----------------------------------------------------------------------------------
     def map(
@@ -162,7 +185,8 @@ class Executor:
             The positional arguments of each call.
         on_result : callable, optional
             ``on_result(index, result)``, called in this process as each task
-            finishes (in the order they finish).
+            finishes (in the order they finish), once per task (a task Ray
+            reran after a node loss is reported once, with its rerun's result).
 
         Returns
         -------
@@ -173,7 +197,9 @@ class Executor:
         ------
         Exception
             The first failing task's exception; the tasks not yet started are
-            cancelled.
+            cancelled. On Ray: the task's own exception (Ray's ``RayTaskError``
+            subclass of its type), or Ray's error for a task whose worker or
+            node died more than ``retries`` times.
         """
         tasks = [tuple(task) for task in tasks]
         self.placements = []
@@ -232,7 +258,9 @@ class Executor:
         self, function: Callable[..., Any], tasks: list[Task], on_result: Callable[[int, Any], None] | None
     ) -> list[tuple[str, Any]]:
         ray = self._connect()
-        remote = ray.remote(num_cpus=1, max_retries=0)(_ray_call)
+        # system failures (a worker process or node lost) rerun the task, lineage recomputes a lost result;
+        # an exception of the task's own code is not retried
+        remote = ray.remote(num_cpus=1, max_retries=self.retries, retry_exceptions=False)(_ray_call)
         references = [remote.remote(function, task) for task in tasks]
         index_of = {reference: index for index, reference in enumerate(references)}
         outcomes: list[Any] = [None] * len(tasks)
@@ -283,7 +311,7 @@ def chunks(items: Sequence[Any], slots: int, *, together: bool = False) -> list[
 
 # -- command line ---------------------------------------------------------------------------------
 def add_arguments(parser: Any) -> None:
-    """Add ``--workers`` and ``--ray`` to a harness's ``argparse`` parser."""
+    """Add ``--workers``, ``--ray`` and ``--ray-retries`` to a harness's ``argparse`` parser."""
     parser.add_argument(
         "--workers", type=int, default=1, help="local processes running the episodes (default 1: this process)"
     )
@@ -294,12 +322,23 @@ def add_arguments(parser: Any) -> None:
         help="run the episodes as Ray tasks on a cluster: 'auto' (the one this machine belongs to) or HOST:PORT "
         "(needs the ray extra; see docs/training/ray.md)",
     )
+    parser.add_argument(
+        "--ray-retries",
+        type=int,
+        default=DEFAULT_RETRIES,
+        metavar="N",
+        help="with --ray: reruns of a task whose worker or node died (default %(default)s; 0: a node loss ends "
+        "the run)",
+    )
 
 
 def from_arguments(args: Any, parser: Any) -> Executor:
-    """The :class:`Executor` of parsed ``--workers`` / ``--ray`` (a usage error on bad values)."""
+    """The :class:`Executor` of parsed ``--workers`` / ``--ray`` / ``--ray-retries`` (a usage error on bad values)."""
+    retries = getattr(args, "ray_retries", DEFAULT_RETRIES)
+    if retries < 0:
+        parser.error(f"--ray-retries must be >= 0, got {retries}")
     try:
-        return Executor(workers=args.workers, ray=args.ray)
+        return Executor(workers=args.workers, ray=args.ray, retries=retries)
     except ValueError as error:
         parser.error(str(error))
         raise  # pragma: no cover - parser.error exits

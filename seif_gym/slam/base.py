@@ -14,6 +14,7 @@ from abc import ABC, abstractmethod
 from typing import Any, ClassVar
 
 import numpy as np
+import scipy.linalg
 import scipy.sparse
 from numpy.typing import ArrayLike, NDArray
 
@@ -30,6 +31,8 @@ from seif_gym.validation import (
 
 __all__ = [
     "SlamFilter",
+    "PREDICTION_TOLERANCE",
+    "prediction_error",
     "InformationForm",
     "SparseInformationForm",
     "UnknownLandmarkError",
@@ -46,7 +49,65 @@ DEFAULT_INITIAL_POSE_COV.setflags(write=False)
 
 
 #: Options every filter takes beside its own ``OPTIONS`` (see :class:`SlamFilter`).
-COMMON_OPTIONS: dict[str, Any] = {"innovation_gate": None}
+COMMON_OPTIONS: dict[str, Any] = {"innovation_gate": None, "max_range": None}
+
+#: The largest relative error, in any direction, of the pose information a checked ``predict`` computes
+#: (:func:`prediction_error`) that it accepts: at least six significant digits must survive the step.
+PREDICTION_TOLERANCE = 1e-6
+
+
+def prediction_error(
+    old_information: FloatArray, new_information: FloatArray, jacobian: FloatArray, noise: FloatArray
+) -> float:
+    r"""Relative error of a motion step's pose information against its closed form, in the worst direction.
+
+    Parameters
+    ----------
+    old_information, new_information : ndarray, shape (3, 3)
+        ``Omega_xx`` (the pose's information given the map) before the step, and as the filter computed it after.
+    jacobian, noise : ndarray, shape (3, 3)
+        The step's ``G`` and ``R``.
+
+    Returns
+    -------
+    float
+        ``max_k |lambda_k - 1|`` over the eigenvalues of ``C^T Omega'_xx C``, where ``C C^T = P``; 0 when the
+        computed ``Omega'_xx`` is exact, at least 1 when it is not positive definite, ``inf`` when anything
+        is not finite or ``P`` cannot be factored.
+
+    Notes
+    -----
+    Given the map, the pose moves as ``x' = g(x, u) + w`` with ``w ~ N(0, R)``, so its information given
+    the map after the step is exactly
+
+    .. math:: \Omega'_{xx} = P^{-1}, \qquad P = G\, \Omega_{xx}^{-1} G^T + R,
+
+    a 3 x 3 computation with no cancellation. An information filter's motion update reaches
+    ``Omega'_xx`` by subtracting two large matrices (Probabilistic Robotics, Table 12.2: ``Phi - kappa``),
+    which loses digits as ``G`` grows; this measures what is left, in constant time.
+    """
+    try:
+        if not (np.isfinite(old_information).all() and np.isfinite(new_information).all()):
+            return float("inf")
+        old_factor = scipy.linalg.cho_factor(old_information, lower=True, check_finite=False)
+        predicted = jacobian @ scipy.linalg.cho_solve(old_factor, jacobian.T, check_finite=False) + noise
+        factor = np.linalg.cholesky(symmetrized(predicted))
+    except (np.linalg.LinAlgError, scipy.linalg.LinAlgError, ValueError):
+        return float("inf")
+    scaled = factor.T @ new_information @ factor
+    error = float(np.abs(np.linalg.eigvalsh(symmetrized(scaled)) - 1.0).max())
+    return error if np.isfinite(error) else float("inf")
+
+
+def _check_max_range(max_range: Any) -> float | None:
+    """``max_range``: None, or a positive finite bound on the ranges :meth:`SlamFilter.update` accepts."""
+    if max_range is None:
+        return None
+    if isinstance(max_range, bool) or not isinstance(max_range, (int, float, np.integer, np.floating)):
+        raise TypeError(f"max_range must be a positive number or None, got {type(max_range).__name__}")
+    if not (np.isfinite(max_range) and float(max_range) > 0.0):
+        raise ValueError(f"max_range must be positive and finite, got {max_range!r}")
+    return float(max_range)
 
 
 def _check_gate(gate: Any) -> float | None:
@@ -160,7 +221,12 @@ class SlamFilter(ABC):
         the options every filter takes (:data:`COMMON_OPTIONS`):
         ``innovation_gate`` (float or None, default None), a threshold on the
         squared Mahalanobis distance of a measurement's innovation; see
-        Notes. An unknown option raises ``TypeError``.
+        Notes; ``max_range`` (float or None, default None), the farthest
+        range :meth:`update` accepts: a measurement beyond it raises
+        ``ValueError`` (a sensor's noise carries its readings a little past
+        its nominal ``max_range``, so give it a margin, for example
+        ``sensor.max_range + 5 * sensor.sigma_range``; None checks nothing).
+        An unknown option raises ``TypeError``.
 
     Attributes
     ----------
@@ -221,6 +287,7 @@ class SlamFilter(ABC):
                 f"{type(self).__name__} got unknown option(s) {', '.join(map(repr, unknown))}; valid options: {valid}"
             )
         gate = _check_gate(options.get("innovation_gate"))
+        self.max_range: float | None = _check_max_range(options.get("max_range"))
         pose = as_finite_vector(initial_pose, "initial_pose", 3).copy()
         pose[2] = wrap_angle(float(pose[2]))
         cov = (
@@ -258,8 +325,13 @@ class SlamFilter(ABC):
         """Set up the state for a robot at ``pose`` with covariance ``pose_cov``."""
 
     @abstractmethod
-    def _predict(self, control: FloatArray, dt: float) -> None:
-        """Motion update with validated inputs."""
+    def _predict(self, control: FloatArray, dt: float, verify: bool = False) -> None:
+        """Motion update with validated inputs.
+
+        With ``verify``, the step checks what it computes (:meth:`_check_motion`, and for an information
+        form :meth:`_check_pose_information`) and raises ``ValueError`` with the filter unchanged when
+        float64 cannot carry it.
+        """
 
     @abstractmethod
     def _update(
@@ -274,10 +346,20 @@ class SlamFilter(ABC):
 
     # -- public interface ----------------------------------------------------
     def predict(self, control: ArrayLike, dt: float) -> None:
-        """Motion update with ``control = (v, omega)`` applied for ``dt`` seconds."""
+        """Motion update with ``control = (v, omega)`` applied for ``dt`` seconds.
+
+        Raises
+        ------
+        ValueError
+            If ``control`` or ``dt`` is not finite (``dt`` not positive), or if the step is beyond what the
+            filter can compute in float64: its increment, Jacobian or noise overflow, the predicted pose
+            covariance (EKF) is not positive definite, or the pose information an information filter
+            computes differs from its closed form by more than :data:`PREDICTION_TOLERANCE`
+            (:func:`prediction_error`). The filter is then unchanged.
+        """
         control = self.motion.validate_control(control)
         dt = as_positive_scalar(dt, "dt")
-        self._predict(control, dt)
+        self._predict(control, dt, verify=True)
 
     def update(self, ranges: ArrayLike, bearings: ArrayLike, ids: ArrayLike) -> None:
         """Measurement update with known correspondences.
@@ -291,11 +373,51 @@ class SlamFilter(ABC):
             landmark, initialised from its measurement.
         """
         ranges, bearings, ids = self.validate_measurements(ranges, bearings, ids)
+        self._check_ranges(ranges, ids)
         self.update_trusted(ranges, bearings, ids)
+
+    def _check_ranges(self, ranges: FloatArray, ids: NDArray[np.int64]) -> None:
+        """Refuse ranges beyond the ``max_range`` option (nothing to check without one)."""
+        if self.max_range is None:
+            return
+        beyond = np.flatnonzero(ranges > self.max_range)
+        if len(beyond):
+            k = int(beyond[0])
+            raise ValueError(
+                f"ranges: landmark id {int(ids[k])} measured at {float(ranges[k]):g} m, beyond this filter's "
+                f"max_range {self.max_range:g} m ({len(beyond)} of {len(ranges)} measurements beyond it)"
+            )
 
     def predict_trusted(self, control: FloatArray, dt: float) -> None:
         """:meth:`predict` without input checks, for simulators whose controls are valid by construction."""
         self._predict(control, float(dt))
+
+    # -- checks of a motion step (``predict``; never the trusted path) -----------------------------
+    @staticmethod
+    def _refuse_motion(control: FloatArray, dt: float, reason: str) -> None:
+        raise ValueError(
+            f"control {tuple(float(c) for c in control)} and dt {dt:g}: {reason}; the filter is unchanged "
+            f"(split the step into shorter ones, or check the units)"
+        )
+
+    def _check_motion(self, control: FloatArray, dt: float, delta: FloatArray, jacobian: FloatArray,
+                      noise: FloatArray) -> None:  # fmt: skip
+        """Refuse a step whose increment, Jacobian or noise is not finite (float64 overflow)."""
+        if not (np.isfinite(delta).all() and np.isfinite(jacobian).all() and np.isfinite(noise).all()):
+            self._refuse_motion(control, dt, "the motion model's increment, Jacobian or noise overflows float64")
+
+    def _check_pose_information(self, control: FloatArray, dt: float, old_information: FloatArray,
+                                new_information: FloatArray, jacobian: FloatArray, noise: FloatArray) -> None:  # fmt: skip
+        """Refuse a step whose computed pose information is off its closed form by more than the tolerance."""
+        error = prediction_error(old_information, new_information, jacobian, noise)
+        if not error <= PREDICTION_TOLERANCE:
+            self._refuse_motion(
+                control,
+                dt,
+                f"the predicted pose information differs from its closed form (G Omega_xx^-1 G^T + R)^-1 by "
+                f"{error:.1e} (relative; tolerance {PREDICTION_TOLERANCE:g}): float64 cannot carry this step "
+                f"in information form",
+            )
 
     def update_trusted(self, ranges: FloatArray, bearings: FloatArray, ids: NDArray[np.int64]) -> None:
         """:meth:`update` without input checks (float64 ranges > 0, bearings, distinct int64 ids).

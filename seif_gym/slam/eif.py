@@ -167,12 +167,17 @@ class EIF(SlamFilter, InformationForm):
         self._cholesky = factor
 
     # -- filter steps ----------------------------------------------------------
-    def _predict(self, control: FloatArray, dt: float) -> None:
-        """EIF motion update: add the new pose, marginalize the old one (class Notes)."""
+    def _predict(self, control: FloatArray, dt: float, verify: bool = False) -> None:
+        """EIF motion update: add the new pose, marginalize the old one (class Notes).
+
+        ``verify``: the new pose information against its closed form, before any write.
+        """
         dim = self._dim
         information = self._information[:dim, :dim]
         mean = self._state_mean[:dim]
         delta, jacobian, motion_noise = self._linearize(mean[:3].copy(), control, dt)
+        if verify:
+            self._check_motion(control, dt, delta, jacobian, motion_noise)
         noise_information = _spd_inverse(motion_noise)
         noise_info_jacobian = noise_information @ jacobian  # R^-1 G
         old_pose_information = symmetrized(information[:3, :3] + jacobian.T @ noise_info_jacobian)  # P
@@ -181,6 +186,11 @@ class EIF(SlamFilter, InformationForm):
         links[3:] = information[3:, :3]
         factor = scipy.linalg.cho_factor(old_pose_information, lower=True, check_finite=False)
         removed = symmetrized(links @ scipy.linalg.cho_solve(factor, links.T, check_finite=False))  # B P^-1 B^T
+        if verify:
+            if not np.isfinite(removed).all():
+                self._refuse_motion(control, dt, "the predicted information matrix overflows float64")
+            self._check_pose_information(control, dt, information[:3, :3], noise_information - removed[:3, :3],
+                                         jacobian, motion_noise)  # fmt: skip
 
         # commit
         information[:3, :3] = noise_information - removed[:3, :3]

@@ -128,18 +128,32 @@ class EKF(SlamFilter):
         self._dim = dim - 2
 
     # -- filter steps ----------------------------------------------------------
-    def _predict(self, control: FloatArray, dt: float) -> None:
-        """EKF motion update (class Notes); O(n)."""
+    def _predict(self, control: FloatArray, dt: float, verify: bool = False) -> None:
+        """EKF motion update (class Notes); O(n). ``verify``: the new pose rows finite, the pose block PD."""
         dim = self._dim
         mean, cov = self._state_mean, self._state_cov
         delta, jacobian, motion_noise = self._linearize(mean[:3].copy(), control, dt)
+        if verify:
+            self._check_motion(control, dt, delta, jacobian, motion_noise)
         robot_block = symmetrized(jacobian @ cov[:3, :3] @ jacobian.T + motion_noise)
         robot_map_block = jacobian @ cov[:3, 3:dim]
+        if verify:
+            self._check_pose_covariance(control, dt, robot_block, robot_map_block)
         mean[:3] += delta
         mean[2] = wrap_angle(float(mean[2]))
         cov[:3, :3] = robot_block
         cov[:3, 3:dim] = robot_map_block
         cov[3:dim, :3] = robot_map_block.T
+
+    def _check_pose_covariance(self, control: FloatArray, dt: float, robot_block: FloatArray,
+                               robot_map_block: FloatArray) -> None:  # fmt: skip
+        """Refuse a predicted pose covariance that is not finite or not positive definite (before any write)."""
+        if not (np.isfinite(robot_block).all() and np.isfinite(robot_map_block).all()):
+            self._refuse_motion(control, dt, "the predicted pose covariance overflows float64")
+        try:
+            np.linalg.cholesky(robot_block)
+        except np.linalg.LinAlgError:
+            self._refuse_motion(control, dt, "the predicted pose covariance is not positive definite in float64")
 
     def _update(
         self,

@@ -741,7 +741,10 @@ class SEIF(SlamFilter, SparseInformationForm):
     mean). The module functions give the equation of each step
     (Probabilistic Robotics, Tables 12.2-12.5). A step that fails at any
     stage (for example a block that is not positive definite) raises and
-    leaves the filter bit-identical (:class:`UpdateJournal`).
+    leaves the filter bit-identical (:class:`UpdateJournal`). A checked
+    ``predict`` also refuses, so, a step whose pose information lost its
+    digits in ``Phi - kappa``
+    (:func:`~seif_gym.slam.base.prediction_error`; constant time).
     """
 
     OPTIONS: ClassVar[dict[str, Any]] = {
@@ -797,20 +800,31 @@ class SEIF(SlamFilter, SparseInformationForm):
         self._journal_buffer = JournalBuffer()
 
     # -- step 1 ------------------------------------------------------------------
-    def _predict(self, control: FloatArray, dt: float) -> None:
+    def _predict(self, control: FloatArray, dt: float, verify: bool = False) -> None:
         # a motion update that writes the robot's and its active landmarks' rows only after its last
-        # computation needs only the robot's block and the arrays (which may grow) saved; others save the rows
-        journal = UpdateJournal(self, None if self._backend.motion_update_writes_last else self._active)
+        # computation needs only the robot's block and the arrays (which may grow) saved; others save the
+        # rows, and so does a verified one (its check comes after the writes)
+        saved = None if self._backend.motion_update_writes_last and not verify else self._active
+        journal = UpdateJournal(self, saved)
         try:
-            self._motion_update(control, dt)
+            self._motion_update(control, dt, verify)
         except BaseException:
             journal.restore()
             raise
 
-    def _motion_update(self, control: FloatArray, dt: float) -> None:
+    def _motion_update(self, control: FloatArray, dt: float, verify: bool = False) -> None:
+        """:func:`motion_update` on the robot and its active landmarks; ``verify``: then check the pose block.
+
+        The check (:func:`~seif_gym.slam.base.prediction_error`) is constant time: the robot's 3 x 3 block.
+        """
         store = self._store
         delta, jacobian, noise = self._linearize(store.mean[:3], control, dt)
+        if verify:
+            self._check_motion(control, dt, delta, jacobian, noise)
+            before = store.robot_info.copy()
         self._backend.motion_update(store, self._active, delta, jacobian, noise)
+        if verify:
+            self._check_pose_information(control, dt, before, store.robot_info, jacobian, noise)
         _rewrap_heading(store, self._active)
 
     # -- merging two landmarks (data association's revision) --------------------------

@@ -18,6 +18,9 @@ lines any of them may be labelled ``LABEL=SPEC`` (:func:`agent_label`).
 from __future__ import annotations
 
 import json
+import os
+import zipfile
+import zlib
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from functools import cache
@@ -40,6 +43,7 @@ __all__ = [
     "agent_label",
     "agent_labels",
     "check_agent_spec",
+    "check_model_file",
     "list_pretrained",
     "load_agent",
     "pretrained",
@@ -299,21 +303,76 @@ def agent_labels(specs: Sequence[str]) -> list[tuple[str, str]]:
     return result
 
 
-def check_agent_spec(spec: str) -> None:
+def check_agent_spec(spec: str, *, open_model: bool = False) -> None:
     """Raise unless ``spec`` (a :func:`agent_label` target) names an agent :func:`load_agent` can build.
+
+    Parameters
+    ----------
+    spec : str
+        A baseline, a shipped policy, the path of an SB3 ``.zip`` or ``rllib:CHECKPOINT``.
+    open_model : bool
+        Also open a saved model (a ``.zip`` or a shipped policy's, :func:`check_model_file`) and
+        check that an RLlib checkpoint's folder exists: what a command does before any episode runs.
 
     Raises
     ------
     FileNotFoundError
-        If an SB3 ``.zip`` does not exist.
+        If an SB3 ``.zip`` (or, with ``open_model``, an RLlib checkpoint) does not exist.
     ValueError
-        If ``spec`` is neither a baseline, a shipped policy, a ``.zip`` nor ``rllib:CHECKPOINT``.
+        If ``spec`` is neither a baseline, a shipped policy, a ``.zip`` nor ``rllib:CHECKPOINT``, or
+        (``open_model``) the model's file is not a saved model.
     """
     if _is_model_path(spec):
         if not Path(spec).exists():
             raise FileNotFoundError(f"no model at {spec}")
-    elif spec not in BASELINES and spec not in SHIPPED_POLICIES and not spec.startswith("rllib:"):
+        if open_model:
+            check_model_file(spec)
+    elif spec in SHIPPED_POLICIES:
+        if open_model:
+            check_model_file(SHIPPED_POLICIES[spec].path)
+    elif spec.startswith("rllib:"):
+        if open_model and not Path(spec[len("rllib:") :]).exists():
+            raise FileNotFoundError(f"no RLlib checkpoint at {spec[len('rllib:') :]}")
+    elif spec not in BASELINES:
         raise ValueError(
             f"unknown agent {spec!r}: use a baseline ({', '.join(BASELINES)}), a shipped policy "
             f"({', '.join(SHIPPED_POLICIES)}), the path of an SB3 .zip or rllib:CHECKPOINT"
         )
+
+
+def check_model_file(path: str | os.PathLike) -> None:
+    """Raise unless ``path`` is a whole saved Stable-Baselines3 / sb3-contrib model (PPO, RecurrentPPO, SAC).
+
+    Opens the ``.zip``, checks every entry against its CRC, and reads the algorithm it holds
+    (:func:`agents.sb3_agent.sb3_algorithm`), without loading the weights.
+
+    Raises
+    ------
+    FileNotFoundError
+        If ``path`` does not exist.
+    ValueError
+        If ``path`` is not a file, not a zip archive (a text file renamed ``.zip``), a truncated or
+        damaged one, or a zip without a model's entries; the message names the file and what is wrong.
+    """
+    path = Path(path)
+    if not path.exists():
+        raise FileNotFoundError(f"no model at {path}")
+    if not path.is_file():
+        raise ValueError(f"{path}: not a file (a saved model is the .zip Stable-Baselines3 writes)")
+    try:
+        with zipfile.ZipFile(path) as archive:
+            damaged = archive.testzip()
+            names = set(archive.namelist())
+    except zipfile.BadZipFile as error:
+        raise ValueError(f"{path}: not a zip archive, or a truncated one ({error}); a saved model is the .zip "
+                         "Stable-Baselines3 writes") from None  # fmt: skip
+    except (OSError, EOFError, zlib.error, NotImplementedError) as error:
+        raise ValueError(f"{path}: a damaged zip archive ({error})") from None
+    if damaged is not None:
+        raise ValueError(f"{path}: a damaged zip archive (its entry {damaged!r} fails its CRC check)")
+    missing = sorted({"data", "policy.pth"} - names)
+    if missing:
+        raise ValueError(
+            f"{path}: a zip archive but not a saved Stable-Baselines3 model (no {', '.join(missing)} in it)"
+        )
+    sb3_algorithm(path)

@@ -6,6 +6,7 @@ The files and their schema are described in :mod:`agents.evaluate`.
 from __future__ import annotations
 
 import csv
+import io
 import json
 import os
 from collections.abc import Mapping, Sequence
@@ -14,7 +15,9 @@ from typing import Any
 
 import numpy as np
 
+from agents.evaluate.journal import JOURNAL, forget_manifest, read_manifest, write_manifest
 from agents.evaluate.schema import INTEGER_COLUMNS, READABLE_SCHEMA_VERSIONS, RESULT_COLUMNS, TABLE_COLUMNS
+from seif_gym._atomic import atomic_write, atomic_write_bytes, atomic_write_text
 
 __all__ = [
     "load_stored_run",
@@ -22,6 +25,7 @@ __all__ = [
     "paired_table",
     "plot_map_error",
     "read_run",
+    "save_figure",
     "signed",
     "signed_interval",
     "write_outputs",
@@ -111,9 +115,19 @@ def paired_table(summary: Mapping[str, Any], digits: int = 3) -> str:
 
 
 def write_outputs(
-    rows: Sequence[Mapping[str, Any]], summary: Mapping[str, Any], out: str | os.PathLike
+    rows: Sequence[Mapping[str, Any]],
+    summary: Mapping[str, Any],
+    out: str | os.PathLike,
+    *,
+    command: str = "agents.evaluate",
+    config: Mapping[str, Any] | None = None,
+    manifest: bool = True,
 ) -> dict[str, Path]:
-    """Write ``results.csv``, ``summary.json``, ``summary.md`` and ``map_error.png`` into ``out``.
+    """Write ``results.csv``, ``summary.json``, ``summary.md`` and ``map_error.png`` into ``out``, then ``manifest.json``.
+
+    Every file is written whole or not at all (:mod:`seif_gym._atomic`); the folder's manifest is
+    deleted first and written last (:func:`~agents.evaluate.journal.write_manifest`), so that the folder
+    reads as a finished run (:func:`read_run`) only once every file is there.
 
     Parameters
     ----------
@@ -121,35 +135,61 @@ def write_outputs(
         :func:`~agents.evaluate.rollout.evaluate_agents`' results (the files' schema: :mod:`agents.evaluate`).
     out : str or PathLike
         The folder, created if missing; files of the same names are replaced.
+    command : str
+        The command named by the manifest.
+    config : mapping, optional
+        The run's configuration in the manifest; default the summary's task, seeds and agents.
+    manifest : bool
+        Write the manifest (``False``: the caller writes it after files of its own).
 
     Returns
     -------
     dict
-        ``{"csv", "json", "markdown", "plot"}`` -> path written.
+        ``{"csv", "json", "markdown", "plot"}`` (and ``"manifest"``) -> path written.
 
     Raises
     ------
     ValueError
-        If the summary holds a number JSON cannot write (``nan``, ``inf``).
+        If the summary holds a number JSON cannot write (``nan``, ``inf``), before any file is replaced.
     """
     folder = Path(out)
     folder.mkdir(parents=True, exist_ok=True)
+    forget_manifest(folder)
     paths = {
         "csv": folder / "results.csv",
         "json": folder / "summary.json",
         "markdown": folder / "summary.md",
         "plot": folder / "map_error.png",
     }
-    with paths["csv"].open("w", newline="") as handle:
-        writer = csv.DictWriter(handle, fieldnames=list(RESULT_COLUMNS))
-        writer.writeheader()
-        for row in rows:
-            writer.writerow({column: row[column] for column in RESULT_COLUMNS})
-    paths["json"].write_text(json.dumps(summary, indent=2, allow_nan=False) + "\n")
+    text = json.dumps(summary, indent=2, allow_nan=False) + "\n"  # refused before any file is touched
+    handle = io.StringIO(newline="")
+    writer = csv.DictWriter(handle, fieldnames=list(RESULT_COLUMNS))
+    writer.writeheader()
+    for row in rows:
+        writer.writerow({column: row[column] for column in RESULT_COLUMNS})
+    atomic_write_bytes(paths["csv"], handle.getvalue().encode())
+    atomic_write_text(paths["json"], text)
     paired = paired_table(summary)
-    paths["markdown"].write_text(markdown_table(summary) + "\n" + (f"\n{paired}\n" if paired else ""))
+    atomic_write_text(paths["markdown"], markdown_table(summary) + "\n" + (f"\n{paired}\n" if paired else ""))
     plot_map_error(summary, paths["plot"])
+    if manifest:
+        if config is None:
+            config = {"env_id": summary["env_id"], "env_kwargs": summary["env_kwargs"], "seeds": summary["seeds"],
+                      "agents": {label: entry["spec"] for label, entry in summary["agents"].items()}}  # fmt: skip
+        paths["manifest"] = write_manifest(folder, list(paths.values()), command, config)
     return paths
+
+
+def save_figure(figure: Any, path: str | os.PathLike) -> Path:
+    """Save a matplotlib ``figure`` to ``path`` whole or not at all, in the format of ``path``'s suffix (``png``).
+
+    Returns
+    -------
+    Path
+        ``path``.
+    """
+    kind = Path(path).suffix.lstrip(".").lower() or "png"
+    return atomic_write(path, lambda temporary: figure.savefig(temporary, format=kind))
 
 
 def plot_map_error(summary: Mapping[str, Any], path: str | os.PathLike) -> None:
@@ -182,8 +222,10 @@ def plot_map_error(summary: Mapping[str, Any], path: str | os.PathLike) -> None:
     ax.grid(alpha=0.3)
     ax.legend()
     fig.tight_layout()
-    fig.savefig(path)
-    plt.close(fig)
+    try:
+        save_figure(fig, path)
+    finally:
+        plt.close(fig)
 
 
 def _seed_range(seeds: Any) -> str:
@@ -283,15 +325,19 @@ def read_run(folder: str | os.PathLike, name: str = "folder") -> tuple[list[dict
         If either file is missing.
     ValueError
         If either file cannot be read as this command writes it, or its schema
-        is not one of :data:`~agents.evaluate.schema.READABLE_SCHEMA_VERSIONS`.
+        is not one of :data:`~agents.evaluate.schema.READABLE_SCHEMA_VERSIONS`;
+        :class:`~agents.evaluate.journal.UnfinishedRunError` if the folder holds no
+        ``manifest.json`` (:func:`~agents.evaluate.journal.read_manifest`: the run was killed
+        before its end, is still running, or was written before the manifests).
     """
     if not isinstance(folder, (str, os.PathLike)):
         raise TypeError(f"{name} must be a folder's path, got {type(folder).__name__}")
     path = Path(folder)
     summary_path, results_path = path / "summary.json", path / "results.csv"
     for needed in (summary_path, results_path):
-        if not needed.is_file():
+        if not needed.is_file() and not (path / JOURNAL).is_dir():
             raise FileNotFoundError(f"{name}: {needed} does not exist (an agents.evaluate --out folder?)")
+    read_manifest(path, name)  # a run killed before its end is not read as one
     try:
         summary = json.loads(summary_path.read_text())
     except json.JSONDecodeError as error:

@@ -22,6 +22,7 @@ import seif_gym  # noqa: F401  (registers the environments)
 from agents.base import Agent
 from agents.baselines import BASELINES, baseline_class
 from agents.evaluate.batched import batch_env, batch_refusal, batch_sizes, run_batched_episodes
+from agents.evaluate.journal import RunJournal
 from agents.evaluate.report import load_stored_run
 from agents.evaluate.schema import SCHEMA_VERSION, SUMMARY_METRICS
 from agents.evaluate.statistics import mean_ci, mean_curve, paired_comparison
@@ -228,7 +229,7 @@ def _batched_episodes(agent: Agent, env_id: str, env_kwargs: Mapping[str, Any], 
                     episodes = run_batched_episodes(agent, env, seeds[first : first + size])
                 finally:
                     env.close()
-                out.extend((row, trace, 0.0, 0) for row, trace in episodes)
+                out.extend(episodes)
                 first += size
     except InexactBatchError as error:  # a BLAS that rounds a batch otherwise: the serial path's rows instead
         return None, str(error)
@@ -268,6 +269,24 @@ def _run_episodes(env_id: str, env_kwargs: Mapping[str, Any], target: str, agent
             env.close()
 
 
+def _unit_key(label: str, target: str, seeds: Sequence[int]) -> dict[str, Any]:
+    """The journal's key of a task of :func:`evaluate_agents`: the agent and its seeds."""
+    return {"unit": "episodes", "agent": label, "target": target, "seeds": [int(seed) for seed in seeds]}
+
+
+def _owner_of(key: Mapping[str, Any], labelled: Sequence[tuple[str, str]], seeds: Sequence[int]) -> int | None:
+    """The agent number whose task ``key`` names (:func:`_unit_key`), ``None`` for none of this run's.
+
+    An agent whose state carries over is kept only from a task of all of its seeds.
+    """
+    if key.get("unit") != "episodes" or [key.get("agent"), key.get("target")] not in [list(p) for p in labelled]:
+        return None
+    number = [list(pair) for pair in labelled].index([key["agent"], key["target"]])
+    if _carries_over(labelled[number][1]) and list(key["seeds"]) != list(seeds):
+        return None
+    return number
+
+
 def evaluate_agents(
     agent_specs: Sequence[str],
     episodes: int,
@@ -282,6 +301,7 @@ def evaluate_agents(
     batch: bool = True,
     batch_size: int = DEFAULT_BATCH_SIZE,
     threads: int = 1,
+    journal: RunJournal | None = None,
 ) -> tuple[list[dict[str, Any]], dict[str, Any]]:
     """Run every agent on the seeds ``seed … seed + episodes − 1``.
 
@@ -324,6 +344,12 @@ def evaluate_agents(
         BLAS and torch threads of each task (:func:`limited_threads`; a saved policy's
         :attr:`~agents.sb3_agent.SB3Agent.threads`); with one, the rows are the same on every
         executor and batched or not.
+    journal : agents.evaluate.journal.RunJournal, optional
+        Keeps each task's episodes as it finishes, and gives back those a killed run of the same
+        configuration kept (:meth:`~agents.evaluate.journal.RunJournal.start` with ``resume``): they are
+        not run again (an agent whose state carries from one episode into the next is run again
+        unless all of its episodes were kept). The rows are those of a run left alone but for
+        ``decision_time_ms``.
 
     Returns
     -------
@@ -379,10 +405,18 @@ def evaluate_agents(
                 print(f"{env_id}: every agent runs one episode at a time ({why})", file=sys.stderr)
         else:
             probe.close()
+    # what a killed run of this configuration finished: its episodes, per agent and seed
+    restored: list[dict[int, EpisodeResult]] = [{} for _ in labelled]
+    if journal is not None:
+        for key, (result, _) in journal.units():
+            number = _owner_of(key, labelled, seeds)
+            if number is not None:
+                restored[number].update({int(item[0]["seed"]): tuple(item) for item in result})
     tasks: list[tuple[Any, ...]] = []
     owner: list[int] = []
     for number, (_, target) in enumerate(labelled):
-        for run in chunks(seeds, slots, together=_carries_over(target)):
+        missing = [episode_seed for episode_seed in seeds if episode_seed not in restored[number]]
+        for run in chunks(missing, slots, together=_carries_over(target)):
             tasks.append((env_id, env_kwargs, target, int(seed), run, size, threads))
             owner.append(number)
     remaining = [owner.count(number) for number in range(len(labelled))]
@@ -392,12 +426,27 @@ def evaluate_agents(
     progress = Progress(len(labelled) * len(seeds), f"{env_id}", enabled=verbose, unit="episodes")
 
     def episodes_of(number: int) -> list[EpisodeResult]:
-        return [item for index in sorted(collected) if owner[index] == number for item in collected[index]]
+        found = dict(restored[number])
+        for index in sorted(collected):
+            if owner[index] == number:
+                found.update({int(item[0]["seed"]): item for item in collected[index]})
+        return [found[episode_seed] for episode_seed in seeds]
+
+    def agent_line(number: int, note: str = "") -> None:
+        done = episodes_of(number)
+        plans = sum(count for _, _, _, count in done)
+        planning = sum(seconds for _, _, seconds, _ in done) / plans if plans else math.nan
+        extra = f", {1e3 * planning:.2f} ms per plan" if math.isfinite(planning) else ""
+        mean = float(np.mean([row["final_map_error"] for row, _, _, _ in done]))
+        progress.write(f"{labelled[number][0]}: {len(seeds)} episodes{note} after {time.perf_counter() - started:.1f} s, "
+                       f"final map error {mean:.3f} m{extra}")  # fmt: skip
 
     def arrived(index: int, outcome: tuple[list[EpisodeResult], str | None]) -> None:
         number = owner[index]
-        label = labelled[number][0]
+        label, target = labelled[number]
         result, reason = outcome
+        if journal is not None:  # kept before anything else: a kill from here on loses nothing of it
+            journal.record(_unit_key(label, target, tasks[index][4]), outcome)
         collected[index] = result
         if reason is not None and number not in told:  # once per agent
             told.add(number)
@@ -406,15 +455,15 @@ def evaluate_agents(
             progress.update(1, f"{label} seed {row['seed']}: {row['final_map_error']:.3f} m")
         remaining[number] -= 1
         if remaining[number] == 0:  # the agent's last task: its line
-            done = episodes_of(number)
-            plans = sum(count for _, _, _, count in done)
-            planning = sum(seconds for _, _, seconds, _ in done) / plans if plans else math.nan
-            extra = f", {1e3 * planning:.2f} ms per plan" if math.isfinite(planning) else ""
-            mean = float(np.mean([row["final_map_error"] for row, _, _, _ in done]))
-            progress.write(f"{label}: {len(seeds)} episodes after {time.perf_counter() - started:.1f} s, "
-                           f"final map error {mean:.3f} m{extra}")  # fmt: skip
+            agent_line(number)
 
     with progress:
+        kept = sum(len(found) for found in restored)
+        if kept:
+            progress.update(kept, f"{kept} episodes kept by the killed run")
+            for number in range(len(labelled)):
+                if remaining[number] == 0:
+                    agent_line(number, " (kept)")
         executor.map(_run_episodes, tasks, on_result=arrived)
     rows: list[dict[str, Any]] = []
     agents_summary: dict[str, Any] = {}

@@ -45,11 +45,13 @@ from __future__ import annotations
 
 import argparse
 import csv
+import io
 import json
 import os
 import sys
 import time
 from collections.abc import Mapping, Sequence
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -57,10 +59,32 @@ import gymnasium as gym
 
 import seif_gym
 from agents.baselines import BASELINES
-from agents.cli import add_deprecated_alias, agents_help, resolve_tasks, tasks_epilog
-from agents.evaluate import DEFAULT_BATCH_SIZE, evaluate_agents, limited_threads, write_outputs
+from agents.cli import (
+    add_deprecated_alias,
+    add_resume_argument,
+    agents_help,
+    check_agents,
+    check_seeds,
+    model_digests,
+    positive_int,
+    resolve_tasks,
+    resume_folder,
+    tasks_epilog,
+    usage_errors,
+)
+from agents.cli import seed as seed_type
+from agents.evaluate import DEFAULT_BATCH_SIZE, evaluate_agents, limited_threads, read_run, write_outputs
 from agents.evaluate.cli import add_batch_arguments, check_batch_arguments
-from agents.loading import SHIPPED_POLICIES, ShippedPolicy, agent_label, check_agent_spec
+from agents.evaluate.journal import (
+    JOURNAL,
+    MANIFEST,
+    RunFinished,
+    RunJournal,
+    finished_with,
+    read_manifest,
+    write_manifest,
+)
+from agents.loading import SHIPPED_POLICIES, ShippedPolicy, agent_label, agent_labels, check_agent_spec
 from agents.memories import policy_view
 from agents.parallel import Executor
 from agents.parallel import add_arguments as add_executor_arguments
@@ -73,9 +97,11 @@ from agents.protocol import (
     held_out_episodes,
 )
 from agents.sb3_agent import sb3_algorithm
+from seif_gym._atomic import atomic_write_bytes, atomic_write_text
 from seif_gym.validation import as_count
 
 __all__ = [
+    "COMMAND",
     "LEADERBOARD_COLUMNS",
     "EXPLORERS",
     "benchmark_variant",
@@ -84,6 +110,9 @@ __all__ = [
     "policy_fits",
     "run_benchmark",
 ]
+
+#: The command's name in its journals and manifests.
+COMMAND = "agents.benchmark"
 
 #: The shipped exploration policies: what the leaderboard runs beside the baselines by default.
 EXPLORERS: tuple[str, ...] = tuple(name for name, policy in SHIPPED_POLICIES.items() if policy.explorer)
@@ -159,7 +188,8 @@ def policy_fits(policy: ShippedPolicy | str | os.PathLike, env_id: str) -> bool:
 
 def benchmark_variant(env_id: str, agents: Sequence[str], episodes: int, seed: int, out: Path,
                       verbose: bool = False, executor: Executor | None = None, batch: bool = True,
-                      batch_size: int = DEFAULT_BATCH_SIZE, threads: int = 1) -> list[dict[str, Any]]:  # fmt: skip
+                      batch_size: int = DEFAULT_BATCH_SIZE, threads: int = 1, *,
+                      resume: bool = False) -> list[dict[str, Any]]:  # fmt: skip
     """Run ``agents`` on the task ``env_id`` and write its files; the task's leaderboard rows.
 
     Parameters
@@ -172,13 +202,17 @@ def benchmark_variant(env_id: str, agents: Sequence[str], episodes: int, seed: i
     episodes, seed : int
         The seeds ``seed … seed + episodes − 1``.
     out : Path
-        :func:`agents.evaluate.write_outputs` goes to ``out / env_id``.
+        :func:`agents.evaluate.write_outputs` goes to ``out / env_id``, with the task's journal
+        (:class:`~agents.evaluate.journal.RunJournal`) while it runs.
     verbose : bool
         Progress on stderr.
     executor : agents.parallel.Executor, optional
         Runs the task's episodes (default: this process).
     batch, batch_size, threads
         As :func:`agents.evaluate.evaluate_agents` takes them.
+    resume : bool
+        Continue what a killed run of the same configuration left in ``out / env_id``: its finished
+        files are read back, its journal's episodes kept.
 
     Returns
     -------
@@ -202,12 +236,23 @@ def benchmark_variant(env_id: str, agents: Sequence[str], episodes: int, seed: i
         specs.append(f"{label}={model.path if isinstance(model, ShippedPolicy) else target}")
         kinds[label] = "policy"
     started = time.perf_counter()
-    rows, summary = evaluate_agents(specs, episodes=episodes, seed=seed, env_id=env_id, env_kwargs={}, verbose=verbose,
-                                    executor=executor, batch=batch, batch_size=batch_size, threads=threads)  # fmt: skip
-    write_outputs(rows, summary, out / env_id)
-    if verbose:
-        print(f"{env_id}: {len(specs)} agents x {episodes} episodes in {time.perf_counter() - started:.0f} s"
-              + (f" (left out, spaces differ: {', '.join(skipped)})" if skipped else ""), file=sys.stderr)  # fmt: skip
+    folder = out / env_id
+    config = {"env_id": env_id, "agents": specs, "models": model_digests(agent_labels(specs)),
+              "episodes": int(episodes), "seed": int(seed), "threads": int(threads)}  # fmt: skip
+    if resume and finished_with(folder, COMMAND, config):  # killed after the task's files were written
+        summary = read_run(folder, env_id)[1]
+        if verbose:
+            print(f"{env_id}: finished by the killed run ({folder / MANIFEST})", file=sys.stderr)
+    else:
+        journal = RunJournal.start(folder, COMMAND, config, resume=resume and (folder / JOURNAL).is_dir())
+        rows, summary = evaluate_agents(specs, episodes=episodes, seed=seed, env_id=env_id, env_kwargs={},
+                                        verbose=verbose, executor=executor, batch=batch, batch_size=batch_size,
+                                        threads=threads, journal=journal)  # fmt: skip
+        write_outputs(rows, summary, folder, command=COMMAND, config=config)
+        journal.finish()
+        if verbose:
+            print(f"{env_id}: {len(specs)} agents x {episodes} episodes in {time.perf_counter() - started:.0f} s"
+                  + (f" (left out, spaces differ: {', '.join(skipped)})" if skipped else ""), file=sys.stderr)  # fmt: skip
     paired = summary["paired"]
     best = paired["reference"]
     table: list[dict[str, Any]] = []
@@ -235,8 +280,12 @@ def benchmark_variant(env_id: str, agents: Sequence[str], episodes: int, seed: i
 
 def run_benchmark(variants: Sequence[str], agents: Sequence[str], episodes: int | None, seed: int, out: str | Path,
                   jobs: int = 1, verbose: bool = False, executor: Executor | None = None, *, batch: bool = True,
-                  batch_size: int = DEFAULT_BATCH_SIZE, threads: int = 1) -> list[dict[str, Any]]:  # fmt: skip
-    """Every agent on every task; writes the leaderboard files.
+                  batch_size: int = DEFAULT_BATCH_SIZE, threads: int = 1, resume: bool = False) -> list[dict[str, Any]]:  # fmt: skip
+    """Every agent on every task; writes the leaderboard files, ``manifest.json`` last.
+
+    Every file is written whole or not at all (:mod:`seif_gym._atomic`). While it runs, ``out`` holds
+    a journal of the finished tasks (:class:`~agents.evaluate.journal.RunJournal`), and each task's
+    folder one of its finished episodes; ``resume`` continues from them.
 
     Parameters
     ----------
@@ -259,6 +308,10 @@ def run_benchmark(variants: Sequence[str], agents: Sequence[str], episodes: int 
         spread over all of its slots; excludes ``jobs`` > 1. Every way gives the rows of one process.
     batch, batch_size, threads
         As :func:`agents.evaluate.evaluate_agents` takes them.
+    resume : bool
+        Continue the killed run of ``out`` (the same tasks, agents, models, episodes, seed and
+        threads): its finished tasks are not run again, its unfinished ones keep their finished
+        episodes, and the leaderboard files equal those of a run left alone.
 
     Returns
     -------
@@ -275,6 +328,10 @@ def run_benchmark(variants: Sequence[str], agents: Sequence[str], episodes: int 
         registered (all before anything is written).
     FileNotFoundError
         If a saved model's path does not exist.
+    agents.evaluate.journal.ResumeError
+        With ``resume``: ``out`` holds no run of this command, or one of another configuration.
+    agents.evaluate.journal.RunFinished
+        With ``resume``: the run of ``out`` finished.
     """
     if episodes is not None:
         as_count(episodes, "episodes", minimum=1)
@@ -300,23 +357,41 @@ def run_benchmark(variants: Sequence[str], agents: Sequence[str], episodes: int 
     if episodes is not None:
         counts = dict.fromkeys(counts, int(episodes))
     folder = Path(out)
-    folder.mkdir(parents=True, exist_ok=True)
+    config = {"tasks": list(variants), "agents": list(agents), "models": model_digests(agent_labels(list(agents))),
+              "episodes": counts, "seed": int(seed), "threads": int(threads)}  # fmt: skip
+    journal = RunJournal.start(folder, COMMAND, config, resume=resume)
+    kept = {key["env_id"]: table for key, table in journal.units() if key.get("unit") == "task"}
+    todo = [env_id for env_id in variants if env_id not in kept]
     work = [(env_id, list(agents), counts[env_id], int(seed), folder, verbose, None, batch, batch_size, threads)
-            for env_id in variants]  # fmt: skip
+            for env_id in todo]  # fmt: skip
+    tables = dict(kept)
+
+    def finished(index: int, table: list[dict[str, Any]]) -> None:
+        journal.record({"unit": "task", "env_id": todo[index]}, table)
+        tables[todo[index]] = table
+
     if executor is not None and executor.kind != "serial":
-        # a variant's episodes at once
-        tables = [benchmark_variant(*task[:6], executor, *task[7:]) for task in work]
-    else:
-        tables = Executor(workers=int(jobs)).map(benchmark_variant, work)  # one variant per task
-    rows = [row for table in tables for row in table]
-    with (folder / "leaderboard.csv").open("w", newline="") as handle:
-        writer = csv.DictWriter(handle, fieldnames=list(LEADERBOARD_COLUMNS))
-        writer.writeheader()
-        writer.writerows(rows)
+        for index, task in enumerate(work):  # a variant's episodes at once
+            finished(index, benchmark_variant(*task[:6], executor, *task[7:], resume=resume))
+    else:  # one variant per task
+        Executor(workers=int(jobs)).map(partial(benchmark_variant, resume=resume), work, on_result=finished)
+    rows = [row for env_id in variants for row in tables[env_id]]
+    handle = io.StringIO(newline="")
+    writer = csv.DictWriter(handle, fieldnames=list(LEADERBOARD_COLUMNS))
+    writer.writeheader()
+    writer.writerows(rows)
     meta = {"episodes": counts, "seeds": {env_id: [int(seed), int(seed) + n - 1] for env_id, n in counts.items()},
             "seif_gym": seif_gym.__version__, "rows": rows}  # fmt: skip
-    (folder / "leaderboard.json").write_text(json.dumps(meta, indent=2, allow_nan=False) + "\n")
-    (folder / "leaderboard.md").write_text(leaderboard_markdown(rows, seed))
+    text = json.dumps(meta, indent=2, allow_nan=False) + "\n"
+    files = [folder / "leaderboard.csv", folder / "leaderboard.json", folder / "leaderboard.md"]
+    atomic_write_bytes(files[0], handle.getvalue().encode())
+    atomic_write_text(files[1], text)
+    atomic_write_text(files[2], leaderboard_markdown(rows, seed))
+    for env_id in variants:  # each task's files, as its own manifest lists them
+        files += [folder / env_id / name for name in read_manifest(folder / env_id, env_id)["files"]]
+        files.append(folder / env_id / MANIFEST)
+    write_manifest(folder, files, COMMAND, config)
+    journal.finish()
     return rows
 
 
@@ -370,16 +445,18 @@ def _parser() -> argparse.ArgumentParser:
                         f"the newest version, {seif_gym.LATEST_VERSION})")  # fmt: skip
     parser.add_argument(
         "--episodes",
-        type=int,
+        type=positive_int,
         default=None,
         help=f"held-out episodes per agent and task (default: the protocol's, {SHORT_TASK_HELD_OUT_EPISODES} on "
         f"tasks of at most {SHORT_TASK_STEPS} steps, {HELD_OUT_EPISODES} on the others)",
     )
-    parser.add_argument("--seed", type=int, default=HELD_OUT_SEED, help="first held-out seed (default %(default)s)")
+    parser.add_argument("--seed", type=seed_type, default=HELD_OUT_SEED,
+                        help="first held-out seed (default %(default)s)")  # fmt: skip
     parser.add_argument("--agents", default=",".join([*BASELINES, *EXPLORERS]),
                         help="comma-separated agents (default: the baselines and the shipped exploration policies)")  # fmt: skip
-    parser.add_argument("--jobs", type=int, default=1, help="worker processes, one task each")
-    parser.add_argument("--out", default="benchmark", help="output folder (default %(default)s)")
+    parser.add_argument("--jobs", type=positive_int, default=1, help="worker processes, one task each")
+    parser.add_argument("--out", default=None, help="output folder (default benchmark)")
+    add_resume_argument(parser)
     parser.add_argument("--quiet", action="store_true", help="no progress on stderr")
     add_batch_arguments(parser)
     add_executor_arguments(parser)  # --workers / --ray: each task's episodes spread over them
@@ -392,7 +469,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     Returns
     -------
     int
-        The exit status, 0; a bad argument exits through ``argparse`` (status 2) before anything is written.
+        The exit status, 0 (also for ``--resume`` of a finished run, which says so); a bad argument exits
+        through ``argparse`` (status 2, one line) before anything is written.
     """
     parser = _parser()
     args = parser.parse_args(argv)
@@ -403,19 +481,27 @@ def main(argv: Sequence[str] | None = None) -> int:
         variants = resolve_tasks(names, args.version) if names else default_variants(args.version)
     except ValueError as error:
         parser.error(f"--tasks: {error}" if names else f"--version: {error}")
+    agents = [name.strip() for name in args.agents.split(",") if name.strip()]
+    with usage_errors(parser):  # every input answered before any episode runs and anything is written
+        check_agents(agents)
+        for env_id in variants:
+            check_seeds(args.seed, args.episodes or held_out_episodes(env_id))
+        out, resume = resume_folder(args, "benchmark")
+    started = time.perf_counter()
     try:
-        agents = [name.strip() for name in args.agents.split(",") if name.strip()]
-        started = time.perf_counter()
         with limited_threads(args.threads):
-            run_benchmark(variants, agents, args.episodes, args.seed, args.out, jobs=args.jobs, verbose=not args.quiet,
+            run_benchmark(variants, agents, args.episodes, args.seed, out, jobs=args.jobs, verbose=not args.quiet,
                           executor=executor, batch=not args.no_batch, batch_size=args.batch_size,
-                          threads=args.threads)  # fmt: skip
-    except (ValueError, FileNotFoundError) as error:
-        parser.error(str(error))
-    print((Path(args.out) / "leaderboard.md").read_text())
+                          threads=args.threads, resume=resume)  # fmt: skip
+    except RunFinished as done:
+        print(done)
+        return 0
+    except (ValueError, FileNotFoundError) as error:  # ResumeError too
+        parser.exit(2, f"{parser.prog}: error: {' '.join(str(error).split())}\n")
+    print((out / "leaderboard.md").read_text())
     if not args.quiet:
-        print(f"{len(variants)} tasks in {time.perf_counter() - started:.0f} s; wrote {args.out}/leaderboard.md, "
-              f".csv, .json and one folder per task", file=sys.stderr)  # fmt: skip
+        print(f"{len(variants)} tasks in {time.perf_counter() - started:.0f} s; wrote {out}/leaderboard.md, "
+              f".csv, .json, one folder per task and manifest.json", file=sys.stderr)  # fmt: skip
     return 0
 
 

@@ -49,6 +49,7 @@ __all__ = [
     "RunJournal",
     "UnfinishedRunError",
     "file_digest",
+    "finished_with",
     "forget_manifest",
     "read_manifest",
     "verify_manifest",
@@ -275,6 +276,20 @@ def file_digest(path: str | os.PathLike) -> str:
         for block in iter(lambda: handle.read(1 << 20), b""):
             digest.update(block)
     return digest.hexdigest()
+
+
+def finished_with(folder: str | os.PathLike, command: str, config: Mapping[str, Any]) -> bool:
+    """Whether ``folder`` holds a finished run of ``command`` with ``config`` (its manifest says so), by this version."""
+    path = Path(folder) / MANIFEST
+    if not path.is_file():
+        return False
+    try:
+        manifest = json.loads(path.read_text())
+    except (OSError, UnicodeDecodeError, ValueError):
+        return False
+    return (isinstance(manifest, dict) and manifest.get("command") == command
+            and manifest.get("seif_gym") == seif_gym.__version__
+            and manifest.get("config") == _canonical(dict(config)))  # fmt: skip
 
 
 def forget_manifest(folder: str | os.PathLike) -> None:

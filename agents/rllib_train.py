@@ -30,7 +30,9 @@ Written to ``--out``:
     ``Algorithm.from_checkpoint`` resumes it and ``RLlibAgent`` /
     ``python -m agents.evaluate --agents rllib:OUT/checkpoint`` evaluates it.
 ``progress.csv``
-    One row per training iteration, columns :data:`PROGRESS_COLUMNS`.
+    One row per training iteration, columns :data:`PROGRESS_COLUMNS` (the
+    last two: the remote env runners healthy after the iteration, and how
+    many times one was restarted so far).
 ``config.json``
     The command's arguments and the algorithm's configuration (as JSON as
     far as it goes; anything else as its ``repr``).
@@ -84,6 +86,8 @@ PROGRESS_COLUMNS: tuple[str, ...] = (
     "iteration_s",
     "steps_per_s",
     "time_s",
+    "healthy_env_runners",
+    "env_runner_restarts",
 )
 
 #: Name under which :func:`make_env` is registered with Ray Tune's env registry.
@@ -174,6 +178,8 @@ def build_config(
     Returns
     -------
     ray.rllib.algorithms.ppo.PPOConfig
+        With ``restart_failed_env_runners``: an env runner that dies (its
+        process killed, its node lost) is restarted and rejoins the sampling.
 
     Raises
     ------
@@ -250,6 +256,9 @@ def build_config(
             use_kl_loss=False,
         )
         .rl_module(rl_module_spec=RLModuleSpec(module_class=BeliefRLModule, model_config=dict(model_config or {})))
+        # an env runner whose process or node dies is started again by Ray (the actor's max_restarts) and brought
+        # back in by RLlib at the next iteration with the learner's weights; the others sample meanwhile
+        .fault_tolerance(restart_failed_env_runners=True)
         .debugging(seed=seed, log_level="ERROR")
     )
 
@@ -307,6 +316,8 @@ def _row(
         "iteration_s": iteration_s,
         "steps_per_s": (steps - previous_steps) / iteration_s if iteration_s > 0 else math.nan,
         "time_s": time.perf_counter() - started,
+        "healthy_env_runners": int(_get(result, "fault_tolerance", "num_healthy_workers", default=0) or 0),
+        "env_runner_restarts": int(_get(result, "fault_tolerance", "num_remote_worker_restarts", default=0) or 0),
     }
 
 

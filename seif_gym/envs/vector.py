@@ -34,6 +34,7 @@ from __future__ import annotations
 import copy
 import functools
 import math
+from collections.abc import Mapping
 from typing import Any
 
 import gymnasium as gym
@@ -56,6 +57,56 @@ from seif_gym.validation import as_count
 from seif_gym.world import BatchedWorld
 
 __all__ = ["SeifExploreVectorEnv"]
+
+
+def _as_actions(actions: Any, num_envs: int) -> FloatArray:
+    """``actions`` as a float64 (num_envs, 2) array of finite real numbers, or a TypeError/ValueError naming it."""
+    expected = f"one row of 2 real numbers per sub-env, shape ({num_envs}, 2)"
+    if actions is None or isinstance(actions, (str, bytes)):
+        raise TypeError(f"actions must be {expected}, got {type(actions).__name__}")
+    try:
+        array = np.asarray(actions)
+    except (TypeError, ValueError):  # ragged nesting
+        raise TypeError(f"actions must be {expected}, got {type(actions).__name__} that is not an array") from None
+    if array.dtype.kind not in "iuf":
+        raise TypeError(f"actions must be {expected}, got dtype {array.dtype}")
+    if array.shape != (num_envs, 2):
+        raise ValueError(f"actions must have shape {(num_envs, 2)}, got {array.shape}")
+    array = np.asarray(array, dtype=np.float64)
+    if not _all_finite(array):
+        raise ValueError(
+            f"actions must be finite, got non-finite rows {np.flatnonzero(~np.isfinite(array).all(1)).tolist()}"
+        )
+    return array
+
+
+def _check_reset_options(options: Any) -> None:
+    """Refuse reset ``options`` as the single env does: None or an empty mapping only."""
+    if options is None:
+        return
+    if not isinstance(options, Mapping):
+        raise TypeError(f"options must be a dict or None, got {type(options).__name__}")
+    if options:
+        raise ValueError(
+            f"options has unknown key(s) {sorted(map(str, options))}: SeifExploreVectorEnv.reset accepts no options "
+            "(pass None or {}); the episodes' set-up is fixed by the constructor's arguments"
+        )
+
+
+def _check_seeds(seed: Any, num_envs: int) -> list[int | None]:
+    """One seed (a non-negative int or None) per sub-env, from ``reset``'s ``seed``."""
+    if seed is None:
+        return [None] * num_envs
+    if isinstance(seed, (int, np.integer)) and not isinstance(seed, bool):
+        if seed < 0:
+            raise ValueError(f"seed must be a non-negative int, got {seed!r}")
+        return [int(seed) + e for e in range(num_envs)]
+    if isinstance(seed, (list, tuple)) and len(seed) == num_envs:
+        for entry in seed:
+            if entry is not None and (isinstance(entry, bool) or not isinstance(entry, (int, np.integer)) or entry < 0):
+                raise ValueError(f"seed must list a non-negative int or None per sub-env, got {seed!r}")
+        return [None if entry is None else int(entry) for entry in seed]
+    raise ValueError(f"seed must be an int, None or a list of {num_envs} seeds, got {seed!r}")
 
 
 @njit(cache=True)
@@ -294,17 +345,20 @@ class SeifExploreVectorEnv(VectorEnv):
     def reset(
         self, *, seed: int | list[int | None] | None = None, options: dict[str, Any] | None = None
     ) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
-        """Reset every sub-env (``seed``: an int seeds sub-env ``e`` with ``seed + e``; or a list)."""
+        """Reset every sub-env (``seed``: an int seeds sub-env ``e`` with ``seed + e``; or a list).
+
+        Raises
+        ------
+        TypeError
+            If ``options`` is not a mapping.
+        ValueError
+            If ``options`` has any key (the env accepts no reset options), or ``seed`` is not a
+            non-negative int, None or a list of one per sub-env; nothing is reset then.
+        """
+        _check_reset_options(options)
+        seeds = _check_seeds(seed, self.num_envs)
         if self._sync is not None:
             return self._sync.reset(seed=seed, options=options)
-        if seed is None:
-            seeds: list[int | None] = [None] * self.num_envs
-        elif isinstance(seed, (int, np.integer)) and not isinstance(seed, bool):
-            seeds = [int(seed) + e for e in range(self.num_envs)]
-        elif isinstance(seed, (list, tuple)) and len(seed) == self.num_envs:
-            seeds = list(seed)
-        else:
-            raise ValueError(f"seed must be an int, None or a list of {self.num_envs} seeds, got {seed!r}")
         observations: list[dict[str, np.ndarray]] = []
         infos: dict[str, Any] = {}
         for e, env_seed in enumerate(seeds):
@@ -323,16 +377,19 @@ class SeifExploreVectorEnv(VectorEnv):
     def step(
         self, actions: ArrayLike
     ) -> tuple[dict[str, np.ndarray], FloatArray, BoolArray, BoolArray, dict[str, Any]]:
-        """Advance every sub-env by one step (``actions``: shape (N, 2), finite)."""
+        """Advance every sub-env by one step (``actions``: shape (N, 2), finite real numbers).
+
+        Raises
+        ------
+        TypeError
+            If ``actions`` is not an array of real numbers (a string, None, ragged rows, a bool, complex or
+            object dtype).
+        ValueError
+            If ``actions`` has not the shape (N, 2) or is not finite; no sub-env steps then.
+        """
+        actions = _as_actions(actions, self.num_envs)
         if self._sync is not None:
             return self._sync.step(actions)
-        actions = np.asarray(actions, dtype=np.float64)
-        if actions.shape != (self.num_envs, 2):
-            raise ValueError(f"actions must have shape {(self.num_envs, 2)}, got {actions.shape}")
-        if not _all_finite(actions):
-            raise ValueError(
-                f"actions must be finite, got non-finite rows {np.flatnonzero(~np.isfinite(actions).all(1)).tolist()}"
-            )
         n = self.num_envs
         template = self.envs[0]
         if self.render_mode is not None and not self._autoreset[0]:

@@ -40,8 +40,11 @@ from __future__ import annotations
 
 import argparse
 import csv
+import io
 import math
+import shutil
 import sys
+import tempfile
 import time
 from collections.abc import Mapping, Sequence
 from pathlib import Path
@@ -53,13 +56,30 @@ import numpy as np
 import seif_gym  # noqa: F401  (registers the environments)
 from agents.base import Agent
 from agents.baselines import BASELINES
-from agents.cli import add_deprecated_alias, agents_help, json_object, task, tasks_epilog
+from agents.cli import (
+    add_deprecated_alias,
+    add_resume_argument,
+    agents_help,
+    check_agents,
+    check_env,
+    check_seeds,
+    json_object,
+    model_digests,
+    positive_int,
+    resume_folder,
+    task,
+    tasks_epilog,
+    usage_errors,
+)
+from agents.cli import seed as seed_type
 from agents.evaluate import build_agent, paired_difference, paired_verdict, run_episode
+from agents.evaluate.journal import ResumeError, RunFinished, RunJournal, write_manifest
 from agents.loading import agent_labels, check_agent_spec
 from agents.parallel import Executor, chunks
 from agents.parallel import add_arguments as add_executor_arguments
 from agents.parallel import from_arguments as executor_from_arguments
 from seif_gym import LATEST_ID
+from seif_gym._atomic import atomic_write, atomic_write_bytes, atomic_write_text
 from seif_gym.envs.explore import SeifExploreEnv
 from seif_gym.episodes import Episode, EpisodeRecorder
 from seif_gym.harness import (
@@ -76,8 +96,13 @@ from seif_gym.progress import Progress
 from seif_gym.threads import limit_blas_threads
 from seif_gym.world import LAYOUTS
 
-__all__ = ["DEFAULT_POLICIES", "PAIRED_METRICS", "PAIRED_COLUMNS", "record_episode", "evaluate",
-           "paired_policies", "paired_policies_table", "main"]  # fmt: skip
+__all__ = ["COMMAND", "DEFAULT_POLICIES", "PAIRED_METRICS", "PAIRED_COLUMNS", "record_episode", "evaluate",
+           "paired_policies", "paired_policies_table", "save_episode", "write_run_outputs", "main"]  # fmt: skip
+
+#: The command's name in its journal and manifest.
+COMMAND = "agents.robustness"
+#: The start of the hidden folders where files are written before they are put in place.
+STAGING = ".staging-"
 
 #: Policies of a run without ``--policies``.
 DEFAULT_POLICIES: tuple[str, ...] = BASELINES
@@ -141,6 +166,7 @@ def evaluate(
     episode_dir: str | Path | None = None,
     verbose: bool = False,
     executor: Executor | None = None,
+    journal: RunJournal | None = None,
 ) -> tuple[list[dict[str, Any]], list[dict[str, np.ndarray]]]:
     """Record one episode per (policy, layout, seed) and replay it through every filter.
 
@@ -168,7 +194,11 @@ def evaluate(
         Where the episodes are recorded and replayed (default: one after
         another in this process). The rows and curves are the same on every
         executor but for the measured times (``us_per_step_*``,
-        ``step_seconds``); the episodes are saved by this process.
+        ``step_seconds``); the episodes are saved by this process, each whole or not at all.
+    journal : agents.evaluate.journal.RunJournal, optional
+        Keeps each task's rows and curves as it finishes, and gives back those a killed run of the
+        same configuration kept (:meth:`~agents.evaluate.journal.RunJournal.start` with ``resume``):
+        their episodes are not recorded again (their saved files are already in ``episode_dir``).
 
     Returns
     -------
@@ -216,12 +246,23 @@ def evaluate(
     layouts = [str(config["layout"])] if layouts is None else list(layouts)
     executor = executor if executor is not None else Executor()
     slots = executor.slots() if executor.kind != "serial" else 1
+    # what a killed run of this configuration finished: each episode's rows and curves
+    restored: dict[tuple[str, str, int], tuple[list[dict[str, Any]], list[dict[str, np.ndarray]]]] = {}
+    if journal is not None:
+        for key, result in journal.units():
+            if key.get("unit") == "episodes" and [key.get("agent"), key.get("target")] in [list(p) for p in labelled]:
+                for item in result:
+                    restored[(str(key["agent"]), str(key["layout"]), int(item["seed"]))] = (
+                        item["rows"],
+                        item["series"],
+                    )
     # tasks: runs of consecutive seeds of one (policy, layout); random is seeded per episode, so every
     # agent here starts each episode afresh and the runs can go anywhere
     tasks: list[tuple[Any, ...]] = []
     for label, target in labelled:
         for layout in layouts:
-            for run in chunks([int(seed) for seed in seeds], slots):
+            missing = [int(seed) for seed in seeds if (label, layout, int(seed)) not in restored]
+            for run in chunks(missing, slots):
                 tasks.append(
                     (env_id, env_kwargs, config, label, target, layout, run, int(steps), specs, int(nees_every))
                 )
@@ -229,26 +270,94 @@ def evaluate(
     collected: dict[int, list[tuple[Episode, list[dict[str, Any]], list[dict[str, np.ndarray]], float, float]]] = {}
     total = len(labelled) * len(layouts) * len(seeds)
     with Progress(total, f"{env_id} robustness", enabled=verbose, unit="episodes") as progress:
+        if restored:
+            progress.update(len(restored), f"{len(restored)} episodes kept by the killed run")
 
         def arrived(index: int, result: list[tuple[Episode, list[dict[str, Any]], Any, float, float]]) -> None:
-            collected[index] = result
-            label, layout = tasks[index][3], tasks[index][5]
-            for episode, _, _, recorded, replayed in result:
-                seed = int(episode.seed) if episode.seed is not None else -1
+            label, target, layout = tasks[index][3], tasks[index][4], tasks[index][5]
+            for episode, _, _, _, _ in result:  # saved before the journal keeps the task
                 if episode_dir is not None:
-                    episode.save(Path(episode_dir) / f"{label}_{layout}_{seed}.npz")
+                    save_episode(episode, Path(episode_dir) / f"{label}_{layout}_{_seed_of(episode)}.npz")
+            if journal is not None:
+                kept = [
+                    {"seed": _seed_of(episode), "rows": rows, "series": curves}
+                    for episode, rows, curves, _, _ in result
+                ]
+                journal.record({"unit": "episodes", "agent": label, "target": target, "layout": layout,
+                                "seeds": list(tasks[index][6])}, kept)  # fmt: skip
+            collected[index] = result
+            for episode, _, _, recorded, replayed in result:
+                seed = _seed_of(episode)
                 progress.update(1, f"{label} {layout} seed {seed}")
                 progress.write(f"{label:>12} {layout:>9} seed {seed:>4}: {episode.steps} steps recorded in "
                                f"{recorded:.1f} s, {len(specs)} filters replayed in {replayed:.1f} s")  # fmt: skip
 
         executor.map(_record_and_score, tasks, on_result=arrived)
+    found = dict(restored)
+    for index, arguments in enumerate(tasks):
+        for episode, episode_rows, episode_series, _, _ in collected[index]:
+            found[(arguments[3], arguments[5], _seed_of(episode))] = (episode_rows, episode_series)
     rows: list[dict[str, Any]] = []
     series: list[dict[str, np.ndarray]] = []
-    for index in range(len(tasks)):
-        for _, episode_rows, episode_series, _, _ in collected[index]:
-            rows += episode_rows
-            series += episode_series
+    for label, _ in labelled:  # the nesting order of a run left alone: policy, layout, seed
+        for layout in layouts:
+            for episode_seed in seeds:
+                episode_rows, episode_series = found[(label, layout, int(episode_seed))]
+                rows += episode_rows
+                series += episode_series
     return rows, series
+
+
+def _seed_of(episode: Episode) -> int:
+    return int(episode.seed) if episode.seed is not None else -1
+
+
+def save_episode(episode: Episode, path: str | Path) -> Path:
+    """:meth:`seif_gym.episodes.Episode.save` to ``path`` (a ``.npz``), whole or not at all.
+
+    Returns
+    -------
+    Path
+        ``path``.
+    """
+    target = Path(path)
+    with tempfile.TemporaryDirectory(dir=target.parent, prefix=STAGING) as staging:
+        return _put_in_place(episode.save(Path(staging) / target.name), target)
+
+
+def write_run_outputs(rows: Sequence[Mapping[str, Any]], series: Sequence[Mapping[str, np.ndarray]],
+                      out: str | Path, config: Mapping[str, Any]) -> dict[str, Path]:  # fmt: skip
+    """:func:`seif_gym.harness.write_outputs` into ``out``, every file whole or not at all.
+
+    The files are written into a hidden folder of ``out`` first, then each put in place by
+    :func:`seif_gym._atomic.atomic_write`.
+
+    Returns
+    -------
+    dict
+        As :func:`seif_gym.harness.write_outputs`: name -> path in ``out``.
+    """
+    folder = Path(out)
+    folder.mkdir(parents=True, exist_ok=True)
+    with tempfile.TemporaryDirectory(dir=folder, prefix=STAGING) as staging:
+        staged = write_outputs(rows, series, staging, config)
+        return {name: _put_in_place(path, folder / path.name) for name, path in staged.items()}
+
+
+def _put_in_place(written: Path, target: Path) -> Path:
+    """Copy the file ``written`` to ``target`` whole or not at all."""
+
+    def copy(temporary: Path) -> None:
+        shutil.copyfile(written, temporary)
+
+    return atomic_write(target, copy)
+
+
+def clear_staging(folder: str | Path) -> None:
+    """Delete the hidden folders a killed :func:`write_run_outputs` or :func:`save_episode` left in ``folder``."""
+    for leftover in Path(folder).rglob(f"{STAGING}*"):
+        if leftover.is_dir():
+            shutil.rmtree(leftover, ignore_errors=True)
 
 
 def paired_policies(
@@ -455,11 +564,12 @@ def _parser() -> argparse.ArgumentParser:
     parser.add_argument("--layouts", default=None,
                         help=f"comma-separated landmark layouts, the env's layout keyword: {', '.join(LAYOUTS)} "
                         "(default: the task's own)")  # fmt: skip
-    parser.add_argument("--episodes", type=int, default=5, metavar="N",
+    parser.add_argument("--episodes", type=positive_int, default=5, metavar="N",
                         help="episodes per agent and layout (default %(default)s)")  # fmt: skip
-    add_deprecated_alias(parser, "--seeds", "--episodes", type=int, metavar="N")
-    parser.add_argument("--seed", type=int, default=0, help="first seed (default 0): seeds S .. S+N-1")
-    parser.add_argument("--steps", type=int, default=300, help="episode length, max_episode_steps (default 300)")
+    add_deprecated_alias(parser, "--seeds", "--episodes", type=positive_int, metavar="N")
+    parser.add_argument("--seed", type=seed_type, default=0, help="first seed (default 0): seeds S .. S+N-1")
+    parser.add_argument("--steps", type=positive_int, default=300,
+                        help="episode length, max_episode_steps (default 300)")  # fmt: skip
     parser.add_argument(
         "--filters", default=None, help=f"comma-separated filters (default {','.join(default_filters())})"
     )
@@ -468,8 +578,10 @@ def _parser() -> argparse.ArgumentParser:
     parser.add_argument(
         "--env-kwargs", type=json_object, default="{}", help="JSON object of further gym.make keyword arguments"
     )
-    parser.add_argument("--nees-every", type=int, default=1, help="steps between full-covariance NEES (default 1)")
-    parser.add_argument("--out", default="eval/robustness", help="output folder (default eval/robustness)")
+    parser.add_argument("--nees-every", type=positive_int, default=1,
+                        help="steps between full-covariance NEES (default 1)")  # fmt: skip
+    parser.add_argument("--out", default=None, help="output folder (default eval/robustness)")
+    add_resume_argument(parser)
     parser.add_argument("--no-save-episodes", action="store_true", help="do not save the recorded episodes")
     parser.add_argument("--quiet", action="store_true", help="no progress on stderr")
     parser.add_argument(
@@ -493,15 +605,19 @@ def _parser() -> argparse.ArgumentParser:
 def main(argv: Sequence[str] | None = None) -> int:
     """Run ``python -m agents.robustness`` with ``argv`` (default ``sys.argv[1:]``).
 
+    Every input is checked before any episode runs and before anything is written (:mod:`agents.cli`);
+    each task's rows are kept in ``--out`` as it finishes (:class:`~agents.evaluate.journal.RunJournal`),
+    so that ``--resume OUT`` continues a killed run. Every file is written whole or not at all, and
+    ``manifest.json`` last.
+
     Returns
     -------
     int
-        The exit status, 0; a bad argument exits through ``argparse`` (status 2) before any episode runs.
+        The exit status, 0 (also for ``--resume`` of a finished run, which says so); a bad argument exits
+        through ``argparse`` (status 2, one line) before any episode runs.
     """
     parser = _parser()
     args = parser.parse_args(argv)
-    if args.episodes < 1 or args.steps < 1 or args.nees_every < 1:
-        parser.error("--episodes, --steps and --nees-every must be positive")
     layouts: list[str] | None = None
     if args.layouts is not None:
         layouts = _split(args.layouts)
@@ -510,16 +626,23 @@ def main(argv: Sequence[str] | None = None) -> int:
             parser.error(f"--layouts: unknown layout(s) {unknown}; use {', '.join(LAYOUTS)}")
     filters = _split(args.filters) if args.filters else default_filters()
     policies = _split(args.agents)
-    try:
-        specs = parse_filters(filters)
-        for _, target in agent_labels(policies):
-            check_agent_spec(target)
-    except (ValueError, FileNotFoundError) as error:
-        parser.error(str(error))
-    seeds = list(range(args.seed, args.seed + args.episodes))
+    with usage_errors(parser):  # every input answered before any episode runs and anything is written
+        try:
+            specs = parse_filters(filters)
+        except ValueError as error:
+            raise ValueError(f"--filters: {error}") from None
+        labelled = check_agents(policies)
+        seeds = check_seeds(args.seed, args.episodes)
+        if "layout" in args.env_kwargs:
+            raise ValueError("--env-kwargs: give the layout with --layouts, not in --env-kwargs")
+        choices: list[str | None] = list(layouts) if layouts else [None]
+        for layout in choices:
+            fixed: dict[str, Any] = {"max_episode_steps": args.steps, **({} if layout is None else {"layout": layout})}
+            check_env(args.env, args.env_kwargs, **fixed)
+        out, resume = resume_folder(args, "eval/robustness")
     paired_metrics = _split(args.paired_metrics)
     if args.paired_against is not None:
-        labels = [label for label, _ in agent_labels(policies)]
+        labels = [label for label, _ in labelled]
         if args.paired_against not in labels:
             parser.error(f"--paired-against: {args.paired_against!r} is not an agent's label ({', '.join(labels)})")
         unknown_metrics = [m for m in paired_metrics if m not in RESULT_COLUMNS]
@@ -531,24 +654,38 @@ def main(argv: Sequence[str] | None = None) -> int:
     elif args.paired_relative_to is not None:
         parser.error("--paired-relative-to needs --paired-against")
     executor = executor_from_arguments(args, parser)
-    out = Path(args.out)
+    filter_config = [{"label": s.label, "filter": s.filter, "options": dict(s.options)} for s in specs]
+    run_config = {
+        "agents": policies, "models": model_digests(labelled), "layouts": layouts, "seeds": seeds, "steps": args.steps,
+        "filters": filter_config, "env": args.env, "env_kwargs": args.env_kwargs, "nees_every": args.nees_every,
+        "save_episodes": not args.no_save_episodes, "paired_against": args.paired_against,
+        "paired_metrics": paired_metrics, "paired_relative_to": args.paired_relative_to,
+    }  # fmt: skip
+    try:
+        journal = RunJournal.start(out, COMMAND, run_config, resume=resume)
+    except RunFinished as finished:
+        print(finished)
+        return 0
+    except ResumeError as error:
+        parser.exit(2, f"{parser.prog}: error: {error}\n")
+    clear_staging(out)
     limit_blas_threads(1)
     started = time.perf_counter()
     rows, series = evaluate(
         policies, layouts, seeds, args.steps, specs,
         env_id=args.env, env_kwargs=args.env_kwargs, nees_every=args.nees_every,
         episode_dir=None if args.no_save_episodes else out / "episodes", verbose=not args.quiet, executor=executor,
+        journal=journal,
     )  # fmt: skip
     wall = time.perf_counter() - started
     layouts = list(dict.fromkeys(str(row["layout"]) for row in rows))  # the task's own when none was given
     config = {
         "argv": list(sys.argv[1:] if argv is None else argv),
         "policies": policies, "layouts": layouts, "seeds": seeds, "steps": args.steps,
-        "filters": [{"label": s.label, "filter": s.filter, "options": dict(s.options)} for s in specs],
-        "env": args.env, "env_kwargs": args.env_kwargs, "nees_every": args.nees_every, "wall_seconds": wall,
-        "executor": executor.describe(),
+        "filters": filter_config, "env": args.env, "env_kwargs": args.env_kwargs, "nees_every": args.nees_every,
+        "wall_seconds": wall, "executor": executor.describe(),
     }  # fmt: skip
-    paths = write_outputs(rows, series, out, config)
+    paths = write_run_outputs(rows, series, out, config)
     print(f"{args.env}: agents {','.join(policies)}; layouts {','.join(layouts)}; seeds {seeds[0]}..{seeds[-1]}; "
           f"{args.steps} steps\n")  # fmt: skip
     print(summary_tables(rows, series))
@@ -557,14 +694,19 @@ def main(argv: Sequence[str] | None = None) -> int:
         if args.paired_relative_to is not None:
             paired += paired_policies(rows, args.paired_against, paired_metrics, relative_to=args.paired_relative_to)
         table = paired_policies_table(paired)
-        paths["paired_md"] = out / "paired.md"
-        paths["paired_md"].write_text(table)
-        paths["paired_csv"] = out / "paired.csv"
-        with paths["paired_csv"].open("w", newline="") as handle:
-            writer = csv.DictWriter(handle, fieldnames=list(PAIRED_COLUMNS))
-            writer.writeheader()
-            writer.writerows({key: ("" if row[key] is None else row[key]) for key in PAIRED_COLUMNS} for row in paired)
+        paths["paired_md"] = atomic_write_text(out / "paired.md", table)
+        handle = io.StringIO(newline="")
+        writer = csv.DictWriter(handle, fieldnames=list(PAIRED_COLUMNS))
+        writer.writeheader()
+        writer.writerows({key: ("" if row[key] is None else row[key]) for key in PAIRED_COLUMNS} for row in paired)
+        paths["paired_csv"] = atomic_write_bytes(out / "paired.csv", handle.getvalue().encode())
         print("\n" + table)
+    files = list(paths.values())
+    if not args.no_save_episodes:
+        files += [out / "episodes" / f"{label}_{layout}_{seed}.npz" for label, _ in labelled for layout in layouts
+                  for seed in seeds]  # fmt: skip
+    paths["manifest"] = write_manifest(out, files, COMMAND, run_config)
+    journal.finish()
     print(f"\nwrote {', '.join(str(p) for p in paths.values())}; {wall:.0f} s")
     return 0
 

@@ -377,6 +377,7 @@ class MapErrorEvalCallback(BaseCallback):
     def _restore_files(self, state: Mapping[str, Any]) -> None:
         """The best model's files and the CSV of the rows as :meth:`state_dict` saw them."""
         from agents.checkpoints import atomic_write
+        from seif_gym._atomic import atomic_write_bytes
 
         assert self.save_path is not None
         for path, content in (
@@ -387,7 +388,7 @@ class MapErrorEvalCallback(BaseCallback):
                 path.unlink(missing_ok=True)  # a best found after the checkpoint: the resumed run finds it again
             elif not path.is_file() or path.read_bytes() != content:
                 path.parent.mkdir(parents=True, exist_ok=True)
-                atomic_write(path, lambda temporary, data=content: temporary.write_bytes(data))
+                atomic_write_bytes(path, content)
 
         def write(temporary: Path) -> None:
             with open(temporary, "w", newline="") as handle:

@@ -35,6 +35,33 @@ class _PlanMemory(_ExploreMemory):
 INFO_GAIN_READS = ("filter", "motion", *GEOMETRY_READS)
 
 
+class _SubEnv:
+    """Sub-env ``index`` of a native vector env as :class:`InfoGainAgent` reads an env: its filter and models."""
+
+    def __init__(self, vector: Any, index: int) -> None:
+        self._vector, self._index = vector, index
+        template = vector.envs[index]  # the single env that holds the sub-env's configuration
+        for name in INFO_GAIN_READS:
+            if name != "filter":
+                setattr(self, name, getattr(template, name))
+
+    @property
+    def filter(self) -> Any:
+        return self._vector.sub_filter(self._index)
+
+
+def _belief_sources(env: Any) -> list[Any]:
+    """What :class:`InfoGainAgent` reads per batch row: each env's unwrapped env, or a vector env's sub-envs."""
+    base = unwrapped_env(env)
+    if (
+        base is not None
+        and callable(getattr(base, "sub_filter", None))
+        and isinstance(getattr(base, "num_envs", None), int)
+    ):
+        return [_SubEnv(base, e) for e in range(base.num_envs)]
+    return [unwrapped_env(e) for e in env_list(env)]
+
+
 class InfoGainAgent(FrontierAgent):
     """Pick the constant-``(v, w)`` arc with the largest expected information gain.
 
@@ -119,7 +146,7 @@ class InfoGainAgent(FrontierAgent):
             )
         super().__init__(envs[0], **kwargs)
         self.geometry = Geometry.from_env(env)  # every env's: one geometry
-        self.envs = [unwrapped_env(e) for e in envs]
+        self.envs = _belief_sources(env)
         if int(horizon) < 1 or int(replan_every) < 1:
             raise ValueError(f"horizon and replan_every must be positive, got {horizon}, {replan_every}")
         self.horizon = int(horizon)
@@ -135,11 +162,34 @@ class InfoGainAgent(FrontierAgent):
         self.wall_penalty = float(wall_penalty)
         #: Wall time of every plan, seconds.
         self.planning_times: list[float] = []
+        #: The batch row of every plan in :attr:`planning_times`.
+        self.planning_rows: list[int] = []
         #: Score terms of the last plan: candidates (c, 2), gain, explore, walls, score (c,).
         self.last_plan: dict[str, np.ndarray] = {}
 
     def _new_state(self) -> _PlanMemory:
         return _PlanMemory(visited=np.zeros((self.grid, self.grid), dtype=bool))
+
+    def bind(self, env: Any) -> None:
+        """Plan with the filter(s) of ``env`` from now on (its geometry must be this agent's); memories are reset.
+
+        ``env`` is any env :class:`InfoGainAgent` takes, a native
+        :class:`~seif_gym.envs.vector.SeifExploreVectorEnv` included: row ``e`` of a batch then plans
+        with a copy of sub-env ``e``'s filter (:meth:`~seif_gym.envs.vector.SeifExploreVectorEnv.sub_filter`),
+        which gives the plan a single env's filter gives.
+
+        Raises
+        ------
+        TypeError
+            If ``env`` is not a ``SeifExplore`` env (or several).
+        ValueError
+            If its geometry is not this agent's.
+        """
+        geometry = Geometry.from_env(env)
+        if geometry != self.geometry:
+            raise ValueError(f"env: its geometry {geometry} is not the agent's {self.geometry}")
+        self.envs = _belief_sources(env)
+        self.reset()
 
     def _env(self, index: int) -> Any:
         if index >= len(self.envs):
@@ -197,13 +247,13 @@ class InfoGainAgent(FrontierAgent):
         covered = np.count_nonzero(seen.reshape(count, -1, len(forward)).any(axis=1), axis=1)
         return covered.astype(np.float64) * raster.cell**2
 
-    def _rollout(self, base: Any, control: FloatArray) -> tuple[Any, FloatArray]:
+    def _rollout(self, base: Any, belief: Any, control: FloatArray) -> tuple[Any, FloatArray]:
         """Copy of the filter after ``horizon`` steps of ``control``, and the predicted poses (horizon, 3).
 
         The reference planner's rollout (:meth:`_plan_reference`); :meth:`plan` rolls every candidate at
         once with :func:`~seif_gym.slam.rollout.expected_rollouts`, which gives the same numbers.
         """
-        filt = copy.deepcopy(base.filter)
+        filt = copy.deepcopy(belief)
         dt = float(base.robot_config.dt)
         sensor = base.sensor
         ids = np.array(filt.landmark_ids, dtype=np.int64)
@@ -267,12 +317,13 @@ class InfoGainAgent(FrontierAgent):
     def _plan(self, observation: Observation, index: int, *, reference: bool) -> np.ndarray:
         started = time.perf_counter()
         base = self._env(index)
-        if base.filter is None:
+        belief = base.filter  # read once: a vector env's sub-env builds it from its arrays
+        if belief is None:
             raise RuntimeError("the env has no filter yet: reset it before asking info_gain for an action")
         scale = np.array([base.robot_config.max_speed, base.robot_config.max_turn_rate], dtype=np.float64)
         half = self.geometry.half
-        start = np.array(base.filter.pose, dtype=np.float64)
-        before = self.uncertainty(base.filter)
+        start = np.array(belief.pose, dtype=np.float64)
+        before = self.uncertainty(belief)
         memory = self._state(index)
         target = self.frontier_target(observation)
         if target is None:
@@ -284,13 +335,13 @@ class InfoGainAgent(FrontierAgent):
         gain, explore, walls = np.zeros(count), np.zeros(count), np.zeros(count)
         if reference:
             for k, action in enumerate(self.candidates):
-                filt, poses = self._rollout(base, action * scale)
+                filt, poses = self._rollout(base, belief, action * scale)
                 gain[k] = before - self.uncertainty(filt)
                 progress = distance0 - float(np.hypot(*(target_world - poses[-1, :2])))
                 explore[k] = self._swept_area(observation, poses, start) + self.progress_weight * progress
                 walls[k] = np.count_nonzero(np.any(np.abs(poses[:, :2]) > half - self.wall_margin, axis=1))
         else:
-            rollouts = expected_rollouts_trusted(base.filter, self.candidates * scale, float(base.robot_config.dt),
+            rollouts = expected_rollouts_trusted(belief, self.candidates * scale, float(base.robot_config.dt),
                                                  self.horizon)  # fmt: skip
             gain[:] = before - self._uncertainties(rollouts)
             swept = self._swept_areas(observation, rollouts.poses, start)
@@ -309,6 +360,7 @@ class InfoGainAgent(FrontierAgent):
             "score": score,
         }
         self.planning_times.append(time.perf_counter() - started)
+        self.planning_rows.append(index)
         return self.candidates[best].copy()
 
     def _act(self, observation: Observation, index: int) -> np.ndarray:

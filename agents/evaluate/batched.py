@@ -12,6 +12,7 @@ run so; :func:`batch_env` builds the vector env, or says why the configuration i
 
 from __future__ import annotations
 
+import copy
 import math
 import time
 from collections.abc import Mapping, Sequence
@@ -20,18 +21,19 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
-from agents.base import Agent
-from agents.baselines import FrontierAgent, RevisitAgent
+from agents.base import Agent, Observation
+from agents.baselines import FrontierAgent, InfoGainAgent, RandomAgent, RevisitAgent
 from agents.memories import needs_acting_env
 from agents.sb3_agent import SB3Agent
 from seif_gym.envs.vector import SeifExploreVectorEnv
 
 __all__ = ["BATCHED_BASELINES", "batch_env", "batch_refusal", "batch_sizes", "run_batched_episodes"]
 
-#: The baselines that act on a batch as on single envs: they read only the observation and the env's
-#: geometry, and their memory is kept per batch row (``random``'s generator runs across episodes, and
-#: ``info_gain`` plans with each env's filter, which the native vector env keeps in arrays).
-BATCHED_BASELINES: tuple[type[Agent], ...] = (FrontierAgent, RevisitAgent)
+#: The baselines that act on a batch as on single envs: they read the observation and the env's geometry,
+#: and their memory is kept per batch row; ``info_gain`` plans row ``e`` with a copy of sub-env ``e``'s
+#: filter (:meth:`InfoGainAgent.bind`); ``random``'s one generator, which runs across the episodes in
+#: order, is drawn ahead (:func:`run_batched_episodes`).
+BATCHED_BASELINES: tuple[type[Agent], ...] = (FrontierAgent, RevisitAgent, InfoGainAgent, RandomAgent)
 
 
 def batch_refusal(agent: Agent) -> str | None:
@@ -61,7 +63,7 @@ def batch_refusal(agent: Agent) -> str | None:
     if agent.carries_over_episodes:
         return "its state carries from one episode into the next"
     if agent.needs_filter:
-        return "it plans with each env's filter, which the native vector env keeps in arrays"
+        return "it plans with each env's filter and cannot be given a vector env's"
     return f"a {type(agent).__name__} is not known to act on a batch as on single envs"
 
 
@@ -111,7 +113,7 @@ def batch_sizes(count: int, batch_size: int) -> list[int]:
 
 def run_batched_episodes(
     agent: Agent, env: SeifExploreVectorEnv, seeds: Sequence[int]
-) -> list[tuple[dict[str, Any], list[float]]]:
+) -> list[tuple[dict[str, Any], list[float], float, int]]:
     """The episodes of ``seeds``, sub-env ``e`` from ``env.reset(seed=seeds[e])``, deterministic actions.
 
     Each sub-env's row is what :func:`~agents.evaluate.rollout.run_episode` returns for its seed, with the
@@ -134,9 +136,11 @@ def run_batched_episodes(
     Returns
     -------
     list of tuple
-        Per seed, in order, ``(row, map_errors)`` as :func:`~agents.evaluate.rollout.run_episode` returns
-        them; ``decision_time_ms`` is the mean over the episode's steps of a call's wall time divided by
-        the sub-envs it acted for.
+        Per seed, in order, ``(row, map_errors, planning_seconds, plans)``: the row and trace as
+        :func:`~agents.evaluate.rollout.run_episode` returns them (``decision_time_ms`` the mean over
+        the episode's steps of a call's wall time divided by the sub-envs it acted for), and the wall
+        time and number of the plans made for the episode by an agent that plans and times it
+        (``info_gain``; ``0.0, 0`` for others).
 
     Raises
     ------
@@ -147,7 +151,96 @@ def run_batched_episodes(
     count = int(env.num_envs)
     if len(seeds) != count:
         raise ValueError(f"seeds must hold one seed per sub-env ({count}), got {len(seeds)}")
+    if type(agent) is RandomAgent:
+        return _random_episodes(agent, env, seeds)
     observation, info = env.reset(seed=list(seeds))
+    planner = agent if isinstance(agent, InfoGainAgent) else None
+    if planner is not None:
+        kept_envs = planner.envs
+        planner.bind(env)  # row e plans with sub-env e's filter
+    first_plan = len(planner.planning_times) if planner is not None else 0
+    try:
+        rows, map_errors, plans_at_end = _batched_rollout(agent, env, seeds, observation, info)
+    finally:
+        if planner is not None:
+            planner.envs = kept_envs
+    planning = [0.0] * count
+    plans = [0] * count
+    if planner is not None:
+        made = zip(planner.planning_times[first_plan:], planner.planning_rows[first_plan:])
+        for number, (seconds, row) in enumerate(made, start=first_plan):
+            if number < plans_at_end[row]:  # a finished sub-env's row is acted on until all have finished
+                planning[row] += seconds
+                plans[row] += 1
+    return [(row, trace, planning[e], plans[e]) for e, (row, trace) in enumerate(zip(rows, map_errors))]
+
+
+class _DrawnAhead(Agent):
+    """``random``'s actions for a batch: row ``e`` at step ``t`` takes draw ``offsets[e] + t`` of ``draws``.
+
+    A row past the draws (its speculated episode ran longer than the draws cover) takes the last one;
+    :func:`_random_episodes` never keeps such a row.
+    """
+
+    def __init__(self, draws: np.ndarray, offsets: np.ndarray) -> None:
+        super().__init__(None)
+        self.draws, self.offsets, self.step = draws, offsets, 0
+
+    def _act(self, observation: Observation, index: int) -> np.ndarray:  # pragma: no cover - predict is whole
+        raise NotImplementedError
+
+    def predict(self, observation: Any, state: Any = None, episode_start: Any = None,
+                deterministic: bool = False) -> tuple[np.ndarray, Any]:  # fmt: skip
+        rows = np.minimum(self.offsets + self.step, len(self.draws) - 1)
+        self.step += 1
+        actions = np.empty((len(rows), 2), dtype=np.float32)
+        actions[:] = np.clip(self.draws[rows], -1.0, 1.0)  # RandomAgent.predict's clip and float32
+        return actions, state
+
+
+def _random_episodes(agent: RandomAgent, env: SeifExploreVectorEnv,
+                     seeds: list[int]) -> list[tuple[dict[str, Any], list[float], float, int]]:  # fmt: skip
+    """:func:`run_batched_episodes` of ``random``: the rows its one generator gives the episodes in order.
+
+    Serially, episode ``k`` takes the draws after those of the episodes before it: 2 uniforms a step,
+    ``2 L_j`` for an episode of ``L_j`` steps. Its actions do not depend on the observations, so the
+    draws are made ahead (from a copy of the generator: ``uniform`` fills an array with the values
+    one call at a time would give) and each episode is offset by the lengths before it, speculated
+    to be the time limit ``T``. An episode that ends before ``T`` (a diverged filter) makes the
+    offsets of the later ones wrong: those are run again with the lengths now known, until every
+    row's offset is exact (each pass fixes at least one more row). At the end the agent's generator
+    is advanced past the draws the episodes took, as a serial run leaves it.
+    """
+    count = len(seeds)
+    limit = env.max_episode_steps
+    if limit is None:
+        raise ValueError("random's episodes are batched under a time limit: make the vector env with max_episode_steps")
+    draws = copy.deepcopy(agent.rng).uniform(-1.0, 1.0, (count * limit, 2))
+    done: list[tuple[dict[str, Any], list[float], float, int]] = []
+    used = 0  # draws taken by the episodes in `done`
+    while len(done) < count:
+        pending = seeds[len(done) :]
+        padded = pending + [pending[-1]] * (count - len(pending))  # the vector env's other rows: not read
+        offsets = used + limit * np.arange(count, dtype=np.int64)
+        observation, info = env.reset(seed=list[int | None](padded))
+        rows, traces, _ = _batched_rollout(_DrawnAhead(draws, offsets), env, padded, observation, info)
+        for row, trace in zip(rows[: len(pending)], traces):
+            done.append((row, trace, 0.0, 0))
+            used += int(row["length"])
+            if row["length"] != limit:  # the next rows' offsets assumed `limit` steps here
+                break
+    agent.rng.uniform(-1.0, 1.0, (used, 2))  # the generator where a serial run leaves it
+    return done
+
+
+def _batched_rollout(agent: Agent, env: SeifExploreVectorEnv, seeds: list[int], observation: dict[str, Any],
+                     info: dict[str, Any]) -> tuple[list[dict[str, Any]], list[list[float]], list[int]]:  # fmt: skip
+    """:func:`run_batched_episodes`' loop from the reset's ``observation`` and ``info``.
+
+    Returns the rows, the map-error traces and, per row, how many plans the agent had made
+    (``len(agent.planning_times)``) when its episode ended.
+    """
+    count = len(seeds)
     if hasattr(agent, "reset"):
         agent.reset()
     map_errors = [[float(info["map_error"][e])] for e in range(count)]
@@ -156,6 +249,7 @@ def run_batched_episodes(
     length, walls = [0] * count, [0] * count
     diverged = [False] * count
     rows: list[dict[str, Any] | None] = [None] * count
+    plans_at_end = [0] * count
     running = list(range(count))
     state: Any = None
     start = np.ones(count, dtype=bool)
@@ -177,6 +271,7 @@ def run_batched_episodes(
             if not (terminated[e] or truncated[e]):
                 still.append(e)
                 continue
+            plans_at_end[e] = len(getattr(agent, "planning_times", ()))
             rows[e] = {
                 "seed": seeds[e],
                 "final_map_error": map_errors[e][-1],
@@ -191,4 +286,5 @@ def run_batched_episodes(
                 "decision_time_ms": 1e3 * thinking[e] / max(length[e], 1),
             }
         running = still
-    return [(row, trace) for row, trace in zip(rows, map_errors) if row is not None]
+    assert all(row is not None for row in rows)  # the loop ends when every episode has
+    return rows, map_errors, plans_at_end  # type: ignore[return-value]

@@ -48,6 +48,7 @@ from seif_gym.envs.explore import Measurements, SeifExploreEnv
 from seif_gym.metrics import map_error_kernel, nees_kernel
 from seif_gym.observation import encode_env, encode_many
 from seif_gym.slam import _kernels
+from seif_gym.slam.base import SlamFilter
 from seif_gym.slam.batched import BatchedESEIF, BatchedSEIF
 from seif_gym.slam.models import VelocityMotionModel, wrap_angle
 from seif_gym.slam.seif import DENSE_MARGINALS_UP_TO, SEIF, exact_marginal_covariance
@@ -536,6 +537,30 @@ class SeifExploreVectorEnv(VectorEnv):
         return self._add_info(infos, info, e)
 
     # -- the rest of the API ---------------------------------------------------------------------------
+    def sub_filter(self, index: int) -> SlamFilter:
+        """A copy of sub-env ``index``'s filter as it is now: the belief a planner reads and may roll forward.
+
+        The copy computes what the sub-env's filter computes, bit for bit, and stepping it leaves the
+        vector env as it was. With the compiled backend it is rebuilt from the batched arrays
+        (:meth:`~seif_gym.slam.batched.BatchedSEIF.to_filter`), with the sync one a deep copy of the
+        single env's filter.
+
+        Raises
+        ------
+        ValueError
+            If ``index`` is not a sub-env.
+        RuntimeError
+            Before the first :meth:`reset`.
+        """
+        if isinstance(index, bool) or not isinstance(index, (int, np.integer)) or not 0 <= index < self.num_envs:
+            raise ValueError(f"index must be a sub-env in [0, {self.num_envs}), got {index!r}")
+        if self._sync is not None:
+            filt = self.envs[int(index)].filter
+            if filt is None:
+                raise RuntimeError("reset() the vector env before asking for a sub-env's filter")
+            return copy.deepcopy(filt)
+        return self._filters.to_filter(int(index))
+
     def render(self) -> Any:  # one frame (uint8) or None, where VectorEnv declares a tuple of frames
         """The frame of sub-env 0 (``render_mode="rgb_array"``), drawn by the single env that runs beside it.
 

@@ -28,6 +28,7 @@ of :func:`~seif_gym.slam.seif.recover_mean_wavefront`) and sparsification
 
 from __future__ import annotations
 
+import copy
 from typing import Any
 
 import numpy as np
@@ -40,7 +41,7 @@ from seif_gym.slam.base import DEFAULT_INITIAL_POSE_COV
 from seif_gym.slam.eseif import ESEIF, RELOCALIZATION_RCOND
 from seif_gym.slam.information import InformationStore
 from seif_gym.slam.models import RangeBearingSensor, VelocityMotionModel, wrap_angle
-from seif_gym.slam.seif import SEIF
+from seif_gym.slam.seif import SEIF, JournalBuffer, RecoveryQueue
 from seif_gym.type_aliases import BoolArray, FloatArray, IntArray
 from seif_gym.validation import as_count, as_finite_array, as_positive_scalar
 
@@ -224,6 +225,87 @@ class BatchedSEIF:
         self.queued[e, :n] = filt._queue.queued[:n]
         self.queue_state[e] = (0, len(ordered))
 
+    def _new_filter(self) -> SEIF:
+        """A filter with the batch's models and options whose state :meth:`to_filter` fills.
+
+        A shallow copy of the reference filter with its own arrays, dicts and lists (the models and
+        the backend, which a step only reads, are shared): a deep copy would walk the models on
+        every call, and a planner asks for a filter at every plan.
+        """
+        reference = self._reference
+        filt = type(reference).__new__(type(reference))
+        for name, value in reference.__dict__.items():
+            if isinstance(value, np.ndarray):
+                value = value.copy()
+            elif isinstance(value, (dict, list)):
+                value = copy.copy(value)
+            filt.__dict__[name] = value
+        filt._journal, filt._journal_buffer = None, JournalBuffer()
+        return filt
+
+    def to_filter(self, index: int) -> SEIF:
+        """A new ``FILTER`` (a :class:`~seif_gym.slam.seif.SEIF`) holding filter ``index``'s state: :meth:`load`'s inverse.
+
+        The filter owns copies of the arrays (the batch is not changed, and stepping the filter does
+        not step the batch); it computes what filter ``index`` would, bit for bit: its information,
+        mean, active set, round-robin position, update count, landmark ids and the recovery queue's
+        order are the batch's.
+
+        Parameters
+        ----------
+        index : int
+            The filter, in ``[0, num_filters)``; reset or loaded.
+
+        Returns
+        -------
+        SEIF
+            A :class:`~seif_gym.slam.seif.SEIF` (an :class:`~seif_gym.slam.eseif.ESEIF` for a
+            :class:`BatchedESEIF`) with the batch's models and options.
+
+        Raises
+        ------
+        ValueError
+            If ``index`` is not a filter of the batch.
+        RuntimeError
+            If filter ``index`` has not been reset or loaded.
+        """
+        if isinstance(index, bool) or not isinstance(index, (int, np.integer)) or not 0 <= index < self.num_filters:
+            raise ValueError(f"index must be an int in [0, {self.num_filters}), got {index!r}")
+        e = int(index)
+        if not self._started[e]:
+            raise RuntimeError(f"filter {e} has not been reset or loaded")
+        n, count = int(self.counters[e, _LANDMARKS]), int(self.counters[e, _ACTIVE])
+        filt = self._new_filter()
+        used = int(self.neighbour_count[e, :n].max()) if n else 0
+        store = InformationStore(max(n, 64), max(used, 16))
+        store.num_landmarks = n
+        store.robot_info[:] = self.robot_info[e]
+        store.robot_links[:n] = self.robot_links[e, :n]
+        store.landmark_info[:n] = self.landmark_info[e, :n]
+        store.neighbour_index[:n, :used] = self.neighbour_index[e, :n, :used]
+        store.neighbour_info[:n, :used] = self.neighbour_info[e, :n, :used]
+        store.neighbour_count[:n] = self.neighbour_count[e, :n]
+        store.information_vector[: 3 + 2 * n] = self.information_vector[e, : 3 + 2 * n]
+        store.mean[: 3 + 2 * n] = self.mean[e, : 3 + 2 * n]
+        filt._store = store
+        capacity = store.capacity
+        filt._active = self.active[e, :count].copy()
+        filt._is_active = np.zeros(capacity, dtype=bool)
+        filt._is_active[:n] = self.is_active[e, :n]
+        filt._last_observed = np.zeros(capacity, dtype=np.int64)
+        filt._last_observed[:n] = self.last_observed[e, :n]
+        filt._update_count = int(self.counters[e, _UPDATES])
+        filt._round_robin = int(self.counters[e, _ROUND_ROBIN])
+        head, size = int(self.queue_state[e, 0]), int(self.queue_state[e, 1])
+        queue = RecoveryQueue(capacity)
+        queue.items[:size] = self.queue[e, (head + np.arange(size)) % self.capacity]
+        queue.queued[:n] = self.queued[e, :n]
+        queue.state[:] = (0, size)
+        filt._queue = queue
+        if n:
+            filt._append_ids(self.ids[e, :n].copy())
+        return filt
+
     def _check_started(self) -> None:
         if not self._started.all():
             missing = np.flatnonzero(~self._started).tolist()
@@ -389,6 +471,14 @@ class BatchedESEIF(BatchedSEIF):
         assert isinstance(filt, ESEIF)  # load checked the type
         self.eseif_counters[int(index)] = (filt.relocalizations, filt.split_relocalizations,
                                            filt.discarded_measurements)  # fmt: skip
+
+    def to_filter(self, index: int) -> ESEIF:
+        filt = super().to_filter(index)
+        assert isinstance(filt, ESEIF)  # FILTER
+        filt.relocalizations, filt.split_relocalizations, filt.discarded_measurements = (
+            int(count) for count in self.eseif_counters[int(index)]
+        )
+        return filt
 
     def update_trusted(self, ranges: FloatArray, bearings: FloatArray, ids: IntArray, counts: IntArray) -> None:
         _kernels.eseif_update_many(*self.kernel_arrays(), *self.bookkeeping_arrays(), ranges, bearings, ids, counts,

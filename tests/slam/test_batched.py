@@ -132,3 +132,69 @@ def test_batched_seif_refuses_filters_it_cannot_reproduce():
         eseifs.load(0, ESEIF(motion, sensor, run.initial_pose, max_active=4, split_weight=0.3))
     with pytest.raises(ValueError, match="split_weight"):
         BatchedESEIF(1, 10, motion, sensor, split_weight=1.5)
+
+
+@pytest.mark.parametrize("batch_class", [BatchedSEIF, BatchedESEIF])
+def test_to_filter_gives_the_filter_the_batch_holds_and_steps_it_alike(batch_class):
+    """to_filter is load's inverse: a filter object equal to the batch's row, which steps on as the row does."""
+    from seif_gym.slam.rollout import expected_rollouts
+
+    motion, sensor, run = make_loop_run(FIDELITY_SCENARIOS["circle"], 2)
+    batch = batch_class(2, len(run.landmarks), motion, sensor, max_active=4)
+    filt = batch.FILTER(motion, sensor, run.initial_pose, max_active=4)
+    for e in (0, 1):
+        batch.reset(e, run.initial_pose)
+
+    def step(t):
+        ranges, bearings, ids = run.ranges[t], run.bearings[t], run.ids[t]
+        batch.predict(np.repeat(run.controls[t][None], 2, axis=0), run.dt)
+        batch.update(np.stack([ranges, ranges]), np.stack([bearings, bearings]), np.stack([ids, ids]),
+                     np.array([len(ids), len(ids)]))  # fmt: skip
+        filt.predict(run.controls[t], run.dt)
+        filt.update(ranges, bearings, ids)
+
+    for t in range(60):
+        step(t)
+    copy = batch.to_filter(1)
+    assert type(copy) is batch.FILTER and copy.num_landmarks == filt.num_landmarks > 0
+    _assert_same(batch, 1, copy, 60)
+    controls = np.array([[1.0, 0.3], [0.5, -0.4]])
+    mine, theirs = expected_rollouts(copy, controls, run.dt, 6), expected_rollouts(filt, controls, run.dt, 6)
+    for name in ("poses", "pose_covariances", "landmark_std"):
+        np.testing.assert_array_equal(getattr(mine, name), getattr(theirs, name))
+    kept = batch.mean.copy()
+    for t in range(60, 90):  # the copy steps on as the filter it equals, and the batch does not move
+        copy.predict(run.controls[t], run.dt)
+        copy.update(run.ranges[t], run.bearings[t], run.ids[t])
+    for t in range(60, 90):
+        filt.predict(run.controls[t], run.dt)
+        filt.update(run.ranges[t], run.bearings[t], run.ids[t])
+    np.testing.assert_array_equal(copy.mean, filt.mean)
+    np.testing.assert_array_equal(copy.active_landmarks, filt.active_landmarks)
+    np.testing.assert_array_equal(batch.mean, kept)
+    with pytest.raises(ValueError, match="index"):
+        batch.to_filter(2)
+
+
+def test_a_vector_envs_sub_filter_is_its_sub_envs_filter():
+    import gymnasium as gym
+
+    import seif_gym  # noqa: F401  (registers the environments)
+
+    single = gym.make("SeifExplore-v2")
+    vector = gym.make_vec("SeifExplore-v2", num_envs=2)
+    single.reset(seed=8)
+    vector.reset(seed=[7, 8])
+    rng = np.random.default_rng(0)
+    for _ in range(30):
+        actions = rng.uniform(-1.0, 1.0, (2, 2))
+        single.step(actions[1])
+        vector.step(actions)
+    copy = vector.unwrapped.sub_filter(1)
+    np.testing.assert_array_equal(copy.mean, single.unwrapped.filter.mean)
+    np.testing.assert_array_equal(copy.landmark_ids, single.unwrapped.filter.landmark_ids)
+    np.testing.assert_array_equal(copy.landmark_std(), single.unwrapped.filter.landmark_std())
+    with pytest.raises(ValueError, match="sub-env"):
+        vector.unwrapped.sub_filter(2)
+    vector.close()
+    single.close()

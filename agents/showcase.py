@@ -3,7 +3,7 @@
 Usage::
 
     python -m agents.showcase [--policy ppo] [--env SeifExplore-v2] [--episodes N] [--seed 1000000]
-        [--out showcase] [--bootstrap N] [--no-batch] [--batch-size 100] [--threads 1] [--quiet]
+        [--out showcase | --resume OUT] [--bootstrap N] [--no-batch] [--batch-size 100] [--threads 1] [--quiet]
 
 Runs :func:`agents.evaluate.evaluate_agents` for ``random``, ``frontier``,
 ``revisit``, ``info_gain`` and ``--policy`` (a shipped policy's name, default
@@ -16,7 +16,9 @@ mean per-seed difference of the final map error with its 95% Student-t
 interval, :func:`agents.evaluate.paired_comparison`; the policy *beats* the
 best baseline only when that interval lies below zero), writes
 ``results.csv``, ``summary.json``, ``summary.md`` and ``map_error.png`` to
-``--out``, and records one episode of the policy as ``episode.gif``.
+``--out``, and records one episode of the policy as ``episode.gif``; each file
+whole or not at all, and ``manifest.json`` (every file's SHA-256) last. A
+killed run continues with ``--resume OUT`` and the same arguments.
 Progress goes to stderr (``--quiet``: none). ``--no-batch``, ``--batch-size``
 and ``--threads`` are :func:`agents.evaluate.evaluate_agents`' (the episodes
 run batched where they can, on one thread per process by default; the rows
@@ -36,16 +38,32 @@ import numpy as np
 
 import seif_gym  # noqa: F401  (registers the envs)
 from agents.baselines import BASELINES
-from agents.cli import task, tasks_epilog
+from agents.cli import (
+    add_resume_argument,
+    check_seeds,
+    model_digests,
+    non_negative_int,
+    positive_int,
+    resume_folder,
+    task,
+    tasks_epilog,
+    usage_errors,
+)
+from agents.cli import seed as seed_type
 from agents.evaluate import evaluate_agents, limited_threads, markdown_table, paired_table, write_outputs
 from agents.evaluate.cli import add_batch_arguments, check_batch_arguments
-from agents.loading import SHIPPED_POLICIES
+from agents.evaluate.journal import MANIFEST, ResumeError, RunFinished, RunJournal, write_manifest
+from agents.loading import SHIPPED_POLICIES, agent_labels, check_model_file
 from agents.protocol import HELD_OUT_SEED, held_out_episodes
 from agents.sb3_agent import SB3Agent
 from seif_gym import LATEST_ID
+from seif_gym._atomic import atomic_write
 from seif_gym.progress import Progress
 
-__all__ = ["ENV_ID", "SHIPPED_POLICY", "main", "record_gif", "verdict_sentence"]
+__all__ = ["COMMAND", "ENV_ID", "SHIPPED_POLICY", "main", "record_gif", "verdict_sentence"]
+
+#: The command's name in its journal and manifest.
+COMMAND = "agents.showcase"
 
 #: The ``.zip`` of the policy shown by default, the shipped policy ``ppo``.
 SHIPPED_POLICY = SHIPPED_POLICIES["ppo"].path
@@ -63,7 +81,7 @@ def record_gif(policy_path: Path, path: Path, seed: int, every: int = 4, size: i
         A saved SB3 / sb3-contrib model (:class:`~agents.sb3_agent.SB3Agent`); a recurrent policy's
         state is carried from step to step, as :func:`agents.evaluate.run_episode` does.
     path : Path
-        The GIF written.
+        The GIF written (whole or not at all).
     seed : int
         Seed of ``env.reset``.
     every : int
@@ -103,8 +121,10 @@ def record_gif(policy_path: Path, path: Path, seed: int, every: int = 4, size: i
                 frames.append(env.render())
     env.close()
     images = [Image.fromarray(frame).resize((size, size), Image.LANCZOS) for frame in frames]
-    images[0].save(path, save_all=True, append_images=images[1:], duration=80, loop=0, optimize=True)
-    return path
+    atomic_write(path, lambda temporary: images[0].save(temporary, format="GIF", save_all=True,
+                                                         append_images=images[1:], duration=80, loop=0,
+                                                         optimize=True))  # fmt: skip
+    return Path(path)
 
 
 def verdict_sentence(summary: Mapping[str, Any], label: str) -> str:
@@ -146,7 +166,9 @@ def verdict_sentence(summary: Mapping[str, Any], label: str) -> str:
 def main(argv: Sequence[str] | None = None) -> None:
     """Run ``python -m agents.showcase`` with ``argv`` (default ``sys.argv[1:]``).
 
-    A bad argument exits through ``argparse`` (status 2) before any episode runs.
+    Every input is checked before any episode runs and before anything is written (:mod:`agents.cli`):
+    a bad argument exits through ``argparse`` (status 2, one line). The files are written whole or not at
+    all, ``manifest.json`` last; ``--resume OUT`` continues a killed run.
     """
     parser = argparse.ArgumentParser(
         prog="python -m agents.showcase",
@@ -154,15 +176,17 @@ def main(argv: Sequence[str] | None = None) -> None:
         epilog=f"shipped policies (--policy): {', '.join(SHIPPED_POLICIES)}\n\n{tasks_epilog()}",
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    parser.add_argument("--episodes", type=int, default=None,
+    parser.add_argument("--episodes", type=positive_int, default=None,
                         help="held-out episodes per agent (default: the protocol's for --env)")  # fmt: skip
-    parser.add_argument("--seed", type=int, default=HELD_OUT_SEED, help="first held-out seed (default %(default)s)")
+    parser.add_argument("--seed", type=seed_type, default=HELD_OUT_SEED,
+                        help="first held-out seed (default %(default)s)")  # fmt: skip
     parser.add_argument("--policy", default="ppo",
                         help="the policy to show: a shipped policy's name or the path of a saved model (default %(default)s)")  # fmt: skip
     parser.add_argument("--env", type=task, default=ENV_ID, metavar="TASK",
                         help="registered env id or family (default %(default)s)")  # fmt: skip
-    parser.add_argument("--out", default="showcase", help="output folder (default %(default)s)")
-    parser.add_argument("--bootstrap", type=int, default=0, metavar="N",
+    parser.add_argument("--out", default=None, help="output folder (default showcase)")
+    add_resume_argument(parser)
+    parser.add_argument("--bootstrap", type=non_negative_int, default=0, metavar="N",
                         help="also a percentile bootstrap interval of the paired differences, N resamples")  # fmt: skip
     parser.add_argument("--quiet", action="store_true", help="no progress on stderr")
     add_batch_arguments(parser)
@@ -172,26 +196,35 @@ def main(argv: Sequence[str] | None = None) -> None:
             args.episodes = held_out_episodes(args.env)
         except ValueError as error:
             parser.error(f"--env: {error}")
-    if args.episodes < 1:
-        parser.error(f"--episodes must be positive, got {args.episodes}")
-    if args.bootstrap < 0:
-        parser.error(f"--bootstrap must be >= 0, got {args.bootstrap}")
     check_batch_arguments(args, parser)
     policy = SHIPPED_POLICIES[args.policy].path if args.policy in SHIPPED_POLICIES else Path(args.policy)
     if not policy.is_file():
         parser.error(f"--policy: {args.policy!r} is neither a shipped policy ({', '.join(SHIPPED_POLICIES)}) "
                      "nor the path of a saved model")  # fmt: skip
-
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
     label = args.policy if args.policy in SHIPPED_POLICIES else None
     specs = [*BASELINES, str(policy) if label is None else f"{label}={policy}"]
+    with usage_errors(parser):  # every input answered before any episode runs and anything is written
+        try:
+            check_model_file(policy)
+        except (ValueError, FileNotFoundError) as error:
+            raise ValueError(f"--policy: {error}") from None
+        check_seeds(args.seed, args.episodes)
+        out, resume = resume_folder(args, "showcase")
+    config = {"env_id": args.env, "episodes": args.episodes, "seed": args.seed, "agents": specs,
+              "models": model_digests(agent_labels(specs)), "bootstrap": args.bootstrap, "threads": args.threads}  # fmt: skip
+    try:
+        journal = RunJournal.start(out, COMMAND, config, resume=resume)
+    except RunFinished as finished:
+        print(finished)
+        return
+    except ResumeError as error:
+        parser.exit(2, f"{parser.prog}: error: {error}\n")
     started = time.perf_counter()
     with limited_threads(args.threads):
         rows, summary = evaluate_agents(specs, episodes=args.episodes, seed=args.seed, env_id=args.env, env_kwargs={},
                                         verbose=not args.quiet, bootstrap=args.bootstrap, batch=not args.no_batch,
-                                        batch_size=args.batch_size, threads=args.threads)  # fmt: skip
-        write_outputs(rows, summary, out)
+                                        batch_size=args.batch_size, threads=args.threads, journal=journal)  # fmt: skip
+        paths = write_outputs(rows, summary, out, manifest=False)
         print(f"{args.env}, {args.episodes} episodes per agent on seeds {args.seed}..{args.seed + args.episodes - 1} "
               f"({time.perf_counter() - started:.0f} s); mean ± 95% CI half-width\n")  # fmt: skip
         print(markdown_table(summary))
@@ -201,8 +234,9 @@ def main(argv: Sequence[str] | None = None) -> None:
         print(f"\n{verdict_sentence(summary, list(summary['agents'])[-1])}")
         gif = record_gif(policy, out / "episode.gif", seed=args.seed, env_id=args.env, verbose=not args.quiet,
                          threads=args.threads)  # fmt: skip
-    print(f"\nwrote {', '.join(str(out / name) for name in ('results.csv', 'summary.json', 'summary.md', 'map_error.png'))} "
-          f"and {gif}")  # fmt: skip
+    write_manifest(out, [*paths.values(), gif], COMMAND, config)
+    journal.finish()
+    print(f"\nwrote {', '.join(str(path) for path in paths.values())}, {gif} and {out / MANIFEST}")
 
 
 if __name__ == "__main__":

@@ -151,6 +151,8 @@ def decision_rates(policy: str, env_id: str, count: int) -> None:
         with agent.exact_batches():
             batched()  # the first batched call checks each row alone
             rates[f"batch {count}, 1 thread, exact (the evaluation's)"] = count / best_time(batched)
+        flops = decision_flops(agent, singles[0])
+        gemm = gemm_rate()
     env.close()
     print(f"## Decisions per second of {policy} on {env_id} ({count} observations)\n")
     print("| how | decisions/s | ms/decision | vs previous | vs batch 1, 1 thread |")
@@ -158,7 +160,31 @@ def decision_rates(policy: str, env_id: str, count: int) -> None:
     previous, single = list(rates.values())[:2]
     for how, rate in rates.items():
         print(f"| {how} | {rate:,.0f} | {1e3 / rate:.3f} | {rate / previous:.1f}x | {rate / single:.1f}x |")
-    print()
+    floor = flops / gemm  # seconds a decision's arithmetic takes at the speed of a large matrix product
+    print(
+        f"\nThe ceiling: one decision is {flops / 1e6:.2f} MFLOP of forward pass (torch's flop counter); this core "
+        f"multiplies large float32 matrices at {gemm / 1e9:.1f} GFLOP/s on one thread, so a batch of {count} takes "
+        f"at least {1e3 * count * floor:.2f} ms ({1e3 * floor:.4f} ms a decision): a batched call can reach at most "
+        f"{1.0 / (floor * single):.1f}x batch 1's rate on one thread, whatever the implementation.\n"
+    )
+
+
+def decision_flops(agent: SB3Agent, observation: dict[str, np.ndarray]) -> float:
+    """Floating-point operations of one batch-1 ``predict`` of ``agent`` (torch's flop counter)."""
+    from torch.utils.flop_counter import FlopCounterMode
+
+    counter = FlopCounterMode(display=False)
+    with counter:
+        agent.predict(observation, episode_start=np.array([True]), deterministic=True)
+    return float(counter.get_total_flops())
+
+
+def gemm_rate(size: int = 1024) -> float:
+    """Floating-point operations per second of a large float32 matrix product on this process's threads."""
+    generator = torch.Generator().manual_seed(0)
+    a = torch.randn(size, size, generator=generator)
+    b = torch.randn(size, size, generator=generator)
+    return 2.0 * size**3 / best_time(lambda: a @ b)
 
 
 def busy_processes(count: int) -> list[subprocess.Popen[bytes]]:

@@ -388,8 +388,9 @@ def run_benchmark(variants: Sequence[str], agents: Sequence[str], episodes: int 
     atomic_write_text(files[1], text)
     atomic_write_text(files[2], leaderboard_markdown(rows, seed))
     for env_id in variants:  # each task's files, as its own manifest lists them
-        files += [folder / env_id / name for name in read_manifest(folder / env_id, env_id)["files"]]
-        files.append(folder / env_id / MANIFEST)
+        if (folder / env_id / MANIFEST).is_file():
+            files += [folder / env_id / name for name in read_manifest(folder / env_id, env_id)["files"]]
+            files.append(folder / env_id / MANIFEST)
     write_manifest(folder, files, COMMAND, config)
     journal.finish()
     return rows

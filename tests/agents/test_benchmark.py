@@ -137,7 +137,7 @@ def test_a_declared_count_is_1600_on_the_short_tasks_and_400_on_the_others_withi
 def test_run_benchmark_runs_each_variant_on_its_protocol_count(tmp_path, monkeypatch):
     counts = {}
 
-    def fake_variant(env_id, agents, episodes, seed, out, verbose=False, *settings):  # settings: executor, batch...
+    def fake_variant(env_id, agents, episodes, seed, out, verbose=False, *settings, resume=False):  # executor, batch...
         counts[env_id] = (episodes, seed)
         return []
 

@@ -149,6 +149,8 @@ import numpy as np
 from scipy.stats import chi2
 
 import seif_gym  # noqa: F401  (registers the environments)
+from seif_gym._atomic import atomic_write, atomic_write_text
+from seif_gym.datasets._files import NPZ_ERRORS, OutputPathError, npz_problem, output_folder, save_figure, save_npz
 from seif_gym.envs.explore import SeifExploreEnv
 from seif_gym.episodes import Episode, EpisodeRecorder, replay
 from seif_gym.metrics import CHI2_975_3DOF, MIN_RELATIVE_LANDMARKS, _map_nees, pose_nees
@@ -551,22 +553,14 @@ def load_episodes(paths: Iterable[str | Path], limit: int | None = None) -> list
 
 
 def _load_episode(path: Path) -> Episode:
-    """:meth:`Episode.load`, with errors that name the file (never numpy's advice on pickles)."""
-    import zipfile
-    import zlib
-
+    """:meth:`Episode.load`, with one-line errors that name the file (never numpy's advice on pickles)."""
     try:
         return Episode.load(path)
-    except (ValueError, KeyError, OSError, EOFError, zipfile.BadZipFile, zlib.error) as error:
+    except NPZ_ERRORS as error:
         text = str(error)
         if isinstance(error, ValueError) and str(path) in text and "pickle" not in text:
             raise
-        reason = (
-            "it holds pickled data"
-            if "pickle" in text
-            else f"corrupt, truncated or not NumPy data ({type(error).__name__})"
-        )
-        raise ValueError(f"{path}: not a readable saved episode: {reason}") from None
+        raise ValueError(f"{path}: not a readable saved episode: {npz_problem(error)}") from None
 
 
 # -- aggregation ------------------------------------------------------------------------------------
@@ -761,9 +755,20 @@ def write_outputs(
     out: str | Path,
     config: Mapping[str, Any] | None = None,
 ) -> dict[str, Path]:
-    """Write ``results.csv``, ``timeseries.npz``, the plots, ``summary.md`` (and ``config.json``) into ``out``."""
-    folder = Path(out)
-    folder.mkdir(parents=True, exist_ok=True)
+    """Write ``results.csv``, ``timeseries.npz``, the plots, ``summary.md`` (and ``config.json``) into ``out``.
+
+    Each file is written whole or not at all (:mod:`seif_gym._atomic`), ``config.json`` last: a folder
+    with it holds a finished run.
+
+    Raises
+    ------
+    ValueError
+        If ``out`` cannot be a folder (it is a file, or not writable); nothing is written then.
+    """
+    try:
+        folder = output_folder(out, "out")
+    except OutputPathError as error:
+        raise ValueError(str(error)) from None
     paths = {
         "csv": folder / "results.csv",
         "timeseries": folder / "timeseries.npz",
@@ -773,11 +778,16 @@ def write_outputs(
         "time_per_step": folder / "time_per_step.png",
         "summary": folder / "summary.md",
     }
-    with paths["csv"].open("w", newline="") as handle:
-        writer = csv.DictWriter(handle, fieldnames=list(RESULT_COLUMNS))
-        writer.writeheader()
-        for row in rows:
-            writer.writerow({column: _csv_value(row[column]) for column in RESULT_COLUMNS})
+    (folder / "config.json").unlink(missing_ok=True)  # the previous run's mark of a finished folder goes first
+
+    def write_csv(temporary: Path) -> None:
+        with temporary.open("w", newline="") as handle:
+            writer = csv.DictWriter(handle, fieldnames=list(RESULT_COLUMNS))
+            writer.writeheader()
+            for row in rows:
+                writer.writerow({column: _csv_value(row[column]) for column in RESULT_COLUMNS})
+
+    atomic_write(paths["csv"], write_csv)
     length = max(len(c["pose_nees"]) for c in series)
     arrays: dict[str, Any] = {
         "policy": np.array([row["policy"] for row in rows], dtype=str),
@@ -788,12 +798,12 @@ def write_outputs(
     for key in _CURVES:
         arrays[key] = _stack(series, key, length)
     arrays["step_seconds"] = _stack(series, "step_seconds", max(length - 1, 0))
-    np.savez_compressed(paths["timeseries"], **arrays)
+    save_npz(paths["timeseries"], arrays)
     _plots(rows, series, paths)
-    paths["summary"].write_text(summary_tables(rows, series) + "\n")
+    atomic_write_text(paths["summary"], summary_tables(rows, series) + "\n")
     if config is not None:
         paths["config"] = folder / "config.json"
-        paths["config"].write_text(json.dumps(dict(config), indent=2) + "\n")
+        atomic_write_text(paths["config"], json.dumps(dict(config), indent=2) + "\n")
     return paths
 
 
@@ -826,7 +836,7 @@ def _plots(
         handles, labels = axes[0, 0].get_legend_handles_labels()
         fig.legend(handles, labels, loc="center right", fontsize=8, frameon=False)
         fig.tight_layout(rect=(0, 0, 1 - 1.3 / width, 1))
-        fig.savefig(path)
+        save_figure(fig, path)
         plt.close(fig)
 
     # map RMSE and pose RMSE
@@ -894,7 +904,7 @@ def _plots(
     ax.set_title("time per step (solid: mean, light: median)")
     ax.grid(alpha=0.3, axis="y")
     fig.tight_layout()
-    fig.savefig(paths["time_per_step"])
+    save_figure(fig, paths["time_per_step"])
     plt.close(fig)
 
 
@@ -984,9 +994,14 @@ def main(argv: Sequence[str] | None = None) -> int:
     filters = _split(args.filters) if args.filters else default_filters()
     try:
         specs = parse_filters(filters)
+    except ValueError as error:
+        parser.error(str(error))
+    try:  # the data and --out, before any work: one line on stderr, exit 2
+        output_folder(args.out, "--out")
         episodes = load_episodes(paths, limit=count)
     except (ValueError, FileNotFoundError) as error:
-        parser.error(str(error))
+        print(f"{parser.prog}: error: {error}", file=sys.stderr)
+        return 2
     limit_blas_threads(1)
     started = time.perf_counter()
     rows, series = evaluate_episodes(episodes, specs, nees_every=args.nees_every, verbose=not args.quiet)

@@ -12,19 +12,34 @@ or the array (``.npz``).
 from __future__ import annotations
 
 import os
+import struct
 import sys
 import zipfile
 import zlib
 from collections.abc import Callable, Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
+from seif_gym._atomic import atomic_write
+
 #: The environment variable naming the folder that holds every dataset (``victoria_park/``, ``mrclam/``).
 DATA_ENV = "SEIF_GYM_DATA"
 
-__all__ = ["DATA_ENV", "DataFormatError", "DataNotFoundError", "data_root", "load_npz", "run_cli"]
+__all__ = [
+    "DATA_ENV",
+    "DataFormatError",
+    "DataNotFoundError",
+    "OutputPathError",
+    "data_root",
+    "load_npz",
+    "output_file",
+    "run_cli",
+    "save_figure",
+    "save_npz",
+]
 
 
 class DataNotFoundError(FileNotFoundError):
@@ -33,6 +48,10 @@ class DataNotFoundError(FileNotFoundError):
 
 class DataFormatError(ValueError):
     """A data file is malformed; the message names the file and the line or the array."""
+
+
+class OutputPathError(ValueError):
+    """An output file cannot be written where asked (its folder is a file, or not writable)."""
 
 
 def data_root() -> Path | None:
@@ -46,14 +65,22 @@ def not_found(what: str, where: str, how: str) -> DataNotFoundError:
     return DataNotFoundError(f"{what} not found: {where}. {how}")
 
 
-def _reason(error: BaseException, archive: bool) -> str:
-    """Why numpy could not read an archive (or one of its arrays), without numpy's advice on ``allow_pickle``."""
+#: What numpy and zipfile raise on a damaged archive: truncated, bytes flipped (in the data or the zip
+#: directory: a bogus version, size or name), or not a zip at all.
+NPZ_ERRORS: tuple[type[BaseException], ...] = (
+    ValueError, OSError, EOFError, zipfile.BadZipFile, zlib.error, NotImplementedError, struct.error, KeyError,
+    IndexError, OverflowError,
+)  # fmt: skip
+
+
+def npz_problem(error: BaseException, archive: bool = True) -> str:
+    """Why numpy could not read an archive (``archive``) or one of its arrays, without its advice on ``allow_pickle``."""
     text = str(error)
     if "Object arrays" in text:
         return "it holds Python objects (pickled), which are never loaded"
     if "pickle" in text and archive:  # neither zip nor .npy data: numpy takes it for a pickle
         return "neither a zip archive nor NumPy data (another format, or corrupt); pickles are never loaded"
-    if isinstance(error, (zipfile.BadZipFile, EOFError, zlib.error)):
+    if isinstance(error, (zipfile.BadZipFile, EOFError, zlib.error, NotImplementedError, struct.error)):
         return "corrupt or truncated"
     return f"corrupt, truncated or not NumPy data ({type(error).__name__})"
 
@@ -73,8 +100,8 @@ def load_npz(path: Path, required: Sequence[str], optional: Sequence[str] = ()) 
     """
     try:
         archive = np.load(path, allow_pickle=False)
-    except (ValueError, OSError, EOFError, zipfile.BadZipFile, zlib.error) as error:
-        raise DataFormatError(f"{path}: not a readable .npz archive: {_reason(error, True)}") from None
+    except NPZ_ERRORS as error:
+        raise DataFormatError(f"{path}: not a readable .npz archive: {npz_problem(error, True)}") from None
     if not isinstance(archive, np.lib.npyio.NpzFile):
         raise DataFormatError(f"{path}: a single array (.npy), not a .npz archive of named arrays")
     arrays: dict[str, NDArray] = {}
@@ -85,9 +112,82 @@ def load_npz(path: Path, required: Sequence[str], optional: Sequence[str] = ()) 
         for name in [*required, *(name for name in optional if name in archive.files)]:
             try:
                 arrays[name] = archive[name]
-            except (ValueError, OSError, EOFError, zipfile.BadZipFile, zlib.error) as error:
-                raise DataFormatError(f"{path}: array {name!r} cannot be read: {_reason(error, False)}") from None
+            except NPZ_ERRORS as error:
+                raise DataFormatError(f"{path}: array {name!r} cannot be read: {npz_problem(error, False)}") from None
     return arrays
+
+
+def npz_path(path: str | os.PathLike[str]) -> Path:
+    """``path``, with ``.npz`` appended when it has another suffix (where ``np.savez`` writes)."""
+    path = Path(path)
+    return path if path.suffix == ".npz" else path.with_name(path.name + ".npz")
+
+
+def _not_a_folder(folder: Path) -> Path | None:
+    """The first of ``folder`` and its ancestors that exists as something other than a folder, if any."""
+    for candidate in (folder, *folder.parents):
+        if candidate.exists():
+            return None if candidate.is_dir() else candidate
+    return None
+
+
+def output_file(path: str | os.PathLike[str], option: str) -> Path:
+    """``path`` as an output file whose folder exists (made here) and is writable, else :class:`OutputPathError`.
+
+    ``option`` names the argument in the message (``--out``). Checked before a command's work starts.
+    """
+    target = Path(path)
+    folder = target.parent
+    blocker = _not_a_folder(folder)
+    if blocker is not None:
+        raise OutputPathError(f"{option} {target}: {blocker} is a file, not a folder")
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+    except OSError as error:
+        raise OutputPathError(
+            f"{option} {target}: cannot make its folder {folder} ({error.strerror or error})"
+        ) from None
+    if target.is_dir():
+        raise OutputPathError(f"{option} {target}: is a folder, expected a file name")
+    if not os.access(folder, os.W_OK | os.X_OK):
+        raise OutputPathError(f"{option} {target}: its folder {folder} is not writable")
+    return target
+
+
+def output_folder(path: str | os.PathLike[str], option: str) -> Path:
+    """``path`` as an output folder that exists (made here) and is writable, else :class:`OutputPathError`."""
+    folder = Path(path)
+    blocker = _not_a_folder(folder)
+    if blocker is not None:
+        raise OutputPathError(f"{option} {folder}: {blocker} is a file, not a folder")
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+    except OSError as error:
+        raise OutputPathError(f"{option} {folder}: cannot make the folder ({error.strerror or error})") from None
+    if not os.access(folder, os.W_OK | os.X_OK):
+        raise OutputPathError(f"{option} {folder}: the folder is not writable")
+    return folder
+
+
+def save_npz(path: str | os.PathLike[str], arrays: dict[str, Any]) -> Path:
+    """``np.savez_compressed`` whole or not at all (:func:`seif_gym._atomic.atomic_write`); returns the file written.
+
+    ``.npz`` is appended to ``path`` when missing, as numpy does.
+    """
+    target = npz_path(path)
+
+    def write(temporary: Path) -> None:
+        with open(temporary, "wb") as handle:
+            np.savez_compressed(handle, **arrays)
+
+    return atomic_write(target, write)
+
+
+def save_figure(figure: Any, path: str | os.PathLike[str], **savefig: Any) -> Path:
+    """``figure.savefig`` whole or not at all, in the format of ``path``'s suffix (PNG when it has none)."""
+    target = Path(path)
+    kind = target.suffix.lstrip(".").lower() or "png"
+    return atomic_write(target, lambda temporary: figure.savefig(temporary, format=kind, **savefig))
 
 
 def check_vector(path: Path, name: str, array: NDArray, kind: str, length: int | None = None) -> None:
@@ -129,12 +229,12 @@ def data_lines(path: Path) -> list[tuple[int, str]]:
 def run_cli(prog: str, command: Callable[[], int]) -> int:
     """Run a command-line ``command``; a data error becomes one line on stderr and exit status 2.
 
-    :class:`DataNotFoundError` and :class:`DataFormatError` are the user's to
-    fix (a path, a file): they are printed as ``prog: error: message``, not as
+    :class:`DataNotFoundError`, :class:`DataFormatError` and :class:`OutputPathError`
+    are the user's to fix (a path, a file): they are printed as ``prog: error: message``, not as
     a traceback. Any other exception propagates.
     """
     try:
         return command()
-    except (DataNotFoundError, DataFormatError) as error:
+    except (DataNotFoundError, DataFormatError, OutputPathError) as error:
         print(f"{prog}: error: {error}", file=sys.stderr)
         return 2

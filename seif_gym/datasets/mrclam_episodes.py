@@ -15,3 +15,9 @@ warnings.warn(
 
 def __getattr__(name: str) -> Any:
     return getattr(_module, name)
+
+
+if __name__ == "__main__":
+    import sys
+
+    sys.exit(_module.main())

@@ -51,7 +51,18 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from seif_gym.datasets._arrays import frozen
-from seif_gym.datasets._files import DATA_ENV, DataFormatError, check_vector, data_root, load_npz, not_found, run_cli
+from seif_gym.datasets._files import (
+    DATA_ENV,
+    DataFormatError,
+    check_vector,
+    data_root,
+    load_npz,
+    not_found,
+    output_file,
+    run_cli,
+    save_figure,
+    save_npz,
+)
 from seif_gym.datasets._geometry import rigid_alignment
 from seif_gym.progress import Progress
 from seif_gym.threads import limit_blas_threads  # noqa: F401  (public here before seif_gym.threads existed)
@@ -522,8 +533,11 @@ class RunResult:
         """Wall time per odometry step (the whole run's time divided by the odometry steps)."""
         return self.total_seconds / max(self.odometry_steps, 1)
 
-    def save(self, path: str | os.PathLike[str]) -> None:
-        """Write the run as ``.npz``; without a GPS fit, ``rmse`` is NaN and ``rmse_note`` says why."""
+    def save(self, path: str | os.PathLike[str]) -> Path:
+        """Write the run as ``.npz``, whole or not at all; returns the file (``.npz`` appended when missing).
+
+        Without a GPS fit, ``rmse`` is NaN and ``rmse_note`` says why.
+        """
         extra: dict[str, Any] = {"rmse": np.float64(np.nan), "rmse_note": np.str_(self.error_note or "not computed")}
         if self.error is not None:
             extra = {
@@ -531,20 +545,22 @@ class RunResult:
                 "gps_rotation": self.error.rotation,
                 "gps_translation": self.error.translation,
             }
-        np.savez_compressed(
+        return save_npz(
             path,
-            time=self.time,
-            pose=self.pose,
-            landmarks=self.landmarks,
-            landmark_ids=self.landmark_ids,
-            scan_time=self.scan_time,
-            scan_elapsed=self.scan_elapsed,
-            scan_landmarks=self.scan_landmarks,
-            total_seconds=np.float64(self.total_seconds),
-            cpu_seconds=np.float64(self.cpu_seconds),
-            warm_up_seconds=np.float64(self.warm_up_seconds),
-            filter=np.str_(self.filter_name),
-            **extra,
+            dict(
+                time=self.time,
+                pose=self.pose,
+                landmarks=self.landmarks,
+                landmark_ids=self.landmark_ids,
+                scan_time=self.scan_time,
+                scan_elapsed=self.scan_elapsed,
+                scan_landmarks=self.scan_landmarks,
+                total_seconds=np.float64(self.total_seconds),
+                cpu_seconds=np.float64(self.cpu_seconds),
+                warm_up_seconds=np.float64(self.warm_up_seconds),
+                filter=np.str_(self.filter_name),
+                **extra,
+            ),
         )
 
 
@@ -873,7 +889,7 @@ def plot(
     ax_time.set_title(f"time per odometry step (windows of 250 scans), {result.odometry_steps} steps", fontsize=10)
     ax_time.grid(alpha=0.3)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    save_figure(fig, path, dpi=110)
     plt.close(fig)
 
 
@@ -954,16 +970,14 @@ def _command(args: Any) -> int:
     config = RunConfig(max_active=args.max_active, revisable=args.revisable, likelihood=args.likelihood)
     if args.signature:
         config = dataclasses.replace(config, **SIGNATURE_SETTINGS)
+    out = output_file(args.out, "--out")  # before the run: an --out that cannot be written fails at once
+    plot_path = None if args.no_plot else output_file(args.plot or out.with_suffix(".png"), "--plot")
     result = run(data, args.filter, steps=args.steps, config=config, progress=not args.quiet,
                  blas_threads=args.blas_threads or None)  # fmt: skip
-    out = Path(args.out)
-    if out.parent != Path(""):
-        out.parent.mkdir(parents=True, exist_ok=True)
-    result.save(out)
+    out = result.save(out)
     print(summary(result))
     print(f"wrote {out}")
-    if not args.no_plot:
-        plot_path = Path(args.plot) if args.plot else out.with_suffix(".png")
+    if plot_path is not None:
         plot(result, data, plot_path, compare=compare)
         print(f"wrote {plot_path}")
     return 0

@@ -52,8 +52,9 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from seif_gym._atomic import atomic_write_text
 from seif_gym.datasets._arrays import frozen
-from seif_gym.datasets._files import DataFormatError, DataNotFoundError, run_cli
+from seif_gym.datasets._files import DataFormatError, DataNotFoundError, output_file, run_cli
 from seif_gym.datasets.mrclam import loader as mrclam
 from seif_gym.datasets.robust import (
     fit_scale_model,
@@ -289,10 +290,8 @@ class Calibration:
             raise ValueError(f"calibration data has a malformed field: {error}") from error
 
     def save(self, path: str | os.PathLike[str]) -> Path:
-        """Write the calibration as JSON to ``path``; returns the path."""
-        path = Path(path)
-        path.write_text(json.dumps(self.to_dict(), indent=2) + "\n")
-        return path
+        """Write the calibration as JSON to ``path``, whole or not at all; returns the path."""
+        return atomic_write_text(path, json.dumps(self.to_dict(), indent=2) + "\n")
 
     @classmethod
     def load(cls, path: str | os.PathLike[str]) -> Calibration:
@@ -1058,6 +1057,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         parser.error(f"--robots: unknown robot(s) {unknown}; the datasets have {list(mrclam.ROBOTS)}")
 
     def command() -> int:
+        output_file(args.out, "--out")  # before any work: an --out that cannot be written fails at once
         logs = [mrclam.load(args.data, robot) for robot in robots]
 
         def progress(message: str) -> None:
@@ -1072,3 +1072,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 0
 
     return run_cli(parser.prog, command)
+
+
+if __name__ == "__main__":  # ``python -m seif_gym.datasets.mrclam.calibration``: the module's own main (imported once)
+    from seif_gym.datasets.mrclam import calibration as _command_module
+
+    sys.exit(_command_module.main())

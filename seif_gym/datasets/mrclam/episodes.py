@@ -44,14 +44,14 @@ from __future__ import annotations
 
 import argparse
 import math
+import sys
 from collections.abc import Sequence
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from seif_gym.datasets._files import run_cli
+from seif_gym.datasets._files import output_folder, run_cli
 from seif_gym.datasets.mrclam import loader as mrclam
 from seif_gym.datasets.mrclam.calibration import DATASET6, Calibration
 from seif_gym.datasets.mrclam.runner import ground_truth, mean_controls, thin_frame
@@ -241,10 +241,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         parser.error(f"--dt: {error}")
 
     def command() -> int:
+        out = output_folder(args.out, "--out")  # before any work: an --out that cannot be written fails at once
         calibration = Calibration.load(args.calibration)
         logs = {robot: mrclam.load(args.data, robot) for robot in args.robots}
-        out = Path(args.out)
-        out.mkdir(parents=True, exist_ok=True)
         with Progress(len(args.robots), "MRCLAM episodes", enabled=not args.quiet, unit="robots") as progress:
             for robot in args.robots:
                 episode = log_to_episode(logs[robot], calibration, conversion)
@@ -256,3 +255,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 0
 
     return run_cli(parser.prog, command)
+
+
+if __name__ == "__main__":  # ``python -m seif_gym.datasets.mrclam.episodes``: the module's own main (imported once)
+    from seif_gym.datasets.mrclam import episodes as _command_module
+
+    sys.exit(_command_module.main())

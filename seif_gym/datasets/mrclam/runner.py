@@ -50,7 +50,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import scipy.stats
 
-from seif_gym.datasets._files import DataNotFoundError, run_cli
+from seif_gym.datasets._files import DataNotFoundError, npz_path, output_file, run_cli, save_figure, save_npz
 from seif_gym.datasets._geometry import rigid_alignment
 from seif_gym.datasets.mrclam import loader as mrclam
 from seif_gym.datasets.mrclam.calibration import Calibration, calibrate
@@ -423,7 +423,9 @@ def score(run: MrclamRun, landmarks: mrclam.Landmarks) -> dict[str, float]:
 # Files
 # ---------------------------------------------------------------------------
 def save_runs(runs: Sequence[MrclamRun], path: str | os.PathLike[str]) -> Path:
-    """Write runs to one ``.npz``: per run ``r{robot}_{name}`` arrays (``time``, ``pose``, ...).
+    """Write runs to one ``.npz``, whole or not at all: per run ``r{robot}_{name}`` arrays (``time``, ``pose``, ...).
+
+    Returns the file written (``.npz`` appended to ``path`` when missing).
 
     With one run the arrays are also stored under their plain names
     (``time``, ``pose`` (N x 3), ``pose_covariance`` (N x 3 x 3), ``truth``,
@@ -440,9 +442,7 @@ def save_runs(runs: Sequence[MrclamRun], path: str | os.PathLike[str]) -> Path:
             arrays[name] = getattr(runs[0], name)
     arrays["robots"] = np.array([run.robot for run in runs], dtype=np.int64)
     arrays["filter"] = np.str_(runs[0].filter_name if runs else "")
-    path = Path(path)
-    np.savez_compressed(path, **arrays)
-    return path
+    return save_npz(path, arrays)
 
 
 def plot_runs(
@@ -472,8 +472,7 @@ def plot_runs(
     if title:
         figure.suptitle(title, fontsize=10)
     figure.tight_layout()
-    path = Path(path)
-    figure.savefig(path, dpi=110)
+    path = save_figure(figure, path, dpi=110)
     plt.close(figure)
     return path
 
@@ -564,6 +563,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 def _command(args: argparse.Namespace) -> int:
     """The runner's work, after its arguments are parsed."""
+    output_file(npz_path(args.out), "--out")  # before any work: an --out that cannot be written fails at once
     given = None if args.calibration is None else Calibration.load(args.calibration)  # a bad file fails first
     folder = mrclam.locate(args.data)
     robots = _robots(args.robot, folder)
@@ -591,3 +591,9 @@ def _command(args: argparse.Namespace) -> int:
     else:
         print(f"wrote {out}")
     return 0
+
+
+if __name__ == "__main__":  # ``python -m seif_gym.datasets.mrclam.runner``: the module's own main (imported once)
+    from seif_gym.datasets.mrclam import runner as _command_module
+
+    sys.exit(_command_module.main())

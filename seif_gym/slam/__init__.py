@@ -4,7 +4,8 @@ Filters (one interface, :class:`SlamFilter`): :class:`SEIF` (sparse extended
 information filter), :class:`EIF` (exact extended information filter),
 :class:`EKF` (EKF SLAM) and :class:`ESEIF` (exactly sparse extended
 information filter: bounded active set by relocalization, no overconfident
-approximation). Models: :class:`VelocityMotionModel` and
+approximation) and :class:`ConservativeSEIF` (sparsification by certified
+conservative cuts of the robot's links). Models: :class:`VelocityMotionModel` and
 :class:`RangeBearingSensor`.
 """
 
@@ -15,6 +16,7 @@ from numpy.typing import ArrayLike
 from seif_gym.slam.association import AssociationAudit, Associator
 from seif_gym.slam.base import InformationForm, SlamFilter, SparseInformationForm, UnknownLandmarkError
 from seif_gym.slam.car_model import AckermannLaserModel
+from seif_gym.slam.cseif import ConservativeSEIF
 from seif_gym.slam.eif import EIF
 from seif_gym.slam.ekf import EKF
 from seif_gym.slam.eseif import ESEIF
@@ -22,7 +24,7 @@ from seif_gym.slam.models import MotionModel, RangeBearingSensor, VelocityMotion
 from seif_gym.slam.seif import SEIF
 
 #: Filters by name, for ``make_filter`` and the env's ``filter=`` argument.
-FILTERS: dict[str, type[SlamFilter]] = {"seif": SEIF, "eif": EIF, "ekf": EKF, "eseif": ESEIF}
+FILTERS: dict[str, type[SlamFilter]] = {"seif": SEIF, "eif": EIF, "ekf": EKF, "eseif": ESEIF, "cseif": ConservativeSEIF}
 
 
 def make_filter(
@@ -45,6 +47,7 @@ __all__ = [
     "AckermannLaserModel",
     "AssociationAudit",
     "Associator",
+    "ConservativeSEIF",
     "EIF",
     "EKF",
     "ESEIF",

@@ -128,7 +128,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(finished)
         return 0
     except ResumeError as error:
-        parser.error(str(error))
+        parser.exit(2, f"{parser.prog}: error: {error}\n")
     if journal.discarded and not args.quiet:
         print(f"{out} held an unfinished run ({journal.discarded} tasks kept): starting afresh "
               f"(--resume {out} would have continued it)", file=sys.stderr)  # fmt: skip

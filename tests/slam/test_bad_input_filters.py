@@ -142,7 +142,7 @@ def test_prediction_error_is_zero_for_the_closed_form_and_large_for_a_wrong_bloc
     noise = np.diag([0.01, 0.02, 0.003])
     exact = np.linalg.inv(jacobian @ np.linalg.inv(old) @ jacobian.T + noise)
     assert prediction_error(old, exact, jacobian, noise) < 1e-12
-    assert prediction_error(old, 1.01 * exact, jacobian, noise) == pytest.approx(0.01)
+    assert prediction_error(old, 1.01 * exact, jacobian, noise) == pytest.approx(0.01 * math.sqrt(3))  # ||0.01 I||_F
     assert prediction_error(old, -exact, jacobian, noise) >= 1.0  # not positive definite
     assert prediction_error(old, exact * math.nan, jacobian, noise) == math.inf
     assert PREDICTION_TOLERANCE < 0.01

@@ -20,7 +20,7 @@ run exactly when it holds a manifest (:func:`read_manifest`); a reader of run fo
 >>> journal.record({"agent": "frontier", "seeds": [0, 1]}, [[0.5, 1.25], None])
 >>> RunJournal.start(folder, "demo", {"episodes": 2}, resume=True).units()
 [({'agent': 'frontier', 'seeds': [0, 1]}, [[0.5, 1.25], None])]
->>> RunJournal.start(folder, "demo", {"episodes": 3}, resume=True)
+>>> RunJournal.start(folder, "demo", {"episodes": 3}, resume=True)  # doctest: +ELLIPSIS
 Traceback (most recent call last):
     ...
 agents.evaluate.journal.ResumeError: --resume: ... was run with another configuration (episodes: 2 there, 3 here)

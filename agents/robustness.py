@@ -4,7 +4,7 @@ r"""The filter robustness harness with agents: ``python -m agents.robustness``.
 
     python -m agents.robustness --agents random,frontier,revisit,ppo=runs/ppo/model.zip \
         --layouts uniform,loop --episodes 5 --seed 0 --steps 300 --out eval/robustness \
-        [--env SeifExplore-v2] [--workers N | --ray auto|ADDRESS] [--quiet]
+        [--env SeifExplore-v2] [--workers N | --ray auto|ADDRESS] [--resume OUT] [--quiet]
 
 For every (agent, layout, seed) one episode of ``--env`` (default the newest
 task, :data:`seif_gym.LATEST_ID`; with ``layout=`` the layout, default the
@@ -26,6 +26,13 @@ goes to stderr (``--quiet``: none). The episodes are recorded and replayed one
 after another in this process, on ``--workers N`` local processes or as Ray
 tasks on a cluster (``--ray``; :mod:`agents.parallel`): the rows are the same
 but for the measured times.
+
+Every input is checked before any episode runs and before anything is
+written (:mod:`agents.cli`): a bad one exits with status 2 and one line.
+Each task's rows are kept in ``--out`` as it finishes
+(:class:`~agents.evaluate.journal.RunJournal`): a killed run goes on with the
+same arguments and ``--resume OUT``, to the rows of a run left alone. Every
+file is written whole or not at all, and ``manifest.json`` last.
 
 ``--paired-against LABEL`` compares every other agent with ``LABEL``, per
 filter and metric, over the episodes they share (the same layout and seed:
@@ -97,11 +104,11 @@ from seif_gym.threads import limit_blas_threads
 from seif_gym.world import LAYOUTS
 
 __all__ = ["COMMAND", "DEFAULT_POLICIES", "PAIRED_METRICS", "PAIRED_COLUMNS", "record_episode", "evaluate",
-           "paired_policies", "paired_policies_table", "save_episode", "write_run_outputs", "main"]  # fmt: skip
+           "paired_policies", "paired_policies_table", "save_episode", "main"]  # fmt: skip
 
 #: The command's name in its journal and manifest.
 COMMAND = "agents.robustness"
-#: The start of the hidden folders where files are written before they are put in place.
+#: The start of the hidden folders where episodes are saved before they are put in place.
 STAGING = ".staging-"
 
 #: Policies of a run without ``--policies``.
@@ -325,25 +332,6 @@ def save_episode(episode: Episode, path: str | Path) -> Path:
         return _put_in_place(episode.save(Path(staging) / target.name), target)
 
 
-def write_run_outputs(rows: Sequence[Mapping[str, Any]], series: Sequence[Mapping[str, np.ndarray]],
-                      out: str | Path, config: Mapping[str, Any]) -> dict[str, Path]:  # fmt: skip
-    """:func:`seif_gym.harness.write_outputs` into ``out``, every file whole or not at all.
-
-    The files are written into a hidden folder of ``out`` first, then each put in place by
-    :func:`seif_gym._atomic.atomic_write`.
-
-    Returns
-    -------
-    dict
-        As :func:`seif_gym.harness.write_outputs`: name -> path in ``out``.
-    """
-    folder = Path(out)
-    folder.mkdir(parents=True, exist_ok=True)
-    with tempfile.TemporaryDirectory(dir=folder, prefix=STAGING) as staging:
-        staged = write_outputs(rows, series, staging, config)
-        return {name: _put_in_place(path, folder / path.name) for name, path in staged.items()}
-
-
 def _put_in_place(written: Path, target: Path) -> Path:
     """Copy the file ``written`` to ``target`` whole or not at all."""
 
@@ -354,7 +342,7 @@ def _put_in_place(written: Path, target: Path) -> Path:
 
 
 def clear_staging(folder: str | Path) -> None:
-    """Delete the hidden folders a killed :func:`write_run_outputs` or :func:`save_episode` left in ``folder``."""
+    """Delete the hidden folders a killed :func:`save_episode` left in ``folder``."""
     for leftover in Path(folder).rglob(f"{STAGING}*"):
         if leftover.is_dir():
             shutil.rmtree(leftover, ignore_errors=True)
@@ -685,7 +673,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         "filters": filter_config, "env": args.env, "env_kwargs": args.env_kwargs, "nees_every": args.nees_every,
         "wall_seconds": wall, "executor": executor.describe(),
     }  # fmt: skip
-    paths = write_run_outputs(rows, series, out, config)
+    paths = write_outputs(rows, series, out, config)  # each file whole or not at all
     print(f"{args.env}: agents {','.join(policies)}; layouts {','.join(layouts)}; seeds {seeds[0]}..{seeds[-1]}; "
           f"{args.steps} steps\n")  # fmt: skip
     print(summary_tables(rows, series))

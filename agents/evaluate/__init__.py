@@ -5,7 +5,7 @@ r"""Compare agents on the same seeds: ``python -m agents.evaluate``.
     python -m agents.evaluate --agents random,frontier,revisit,info_gain,runs/ppo/model.zip \
         --episodes 10 --seed 1000 [--env SeifExplore-v2] [--env-kwargs '{"layout": "loop"}'] [--out DIR] \
         [--bootstrap 10000] [--workers N | --ray auto|ADDRESS] [--no-batch] [--batch-size 100] [--threads 1] \
-        [--quiet]
+        [--resume OUT] [--quiet]
 
 Every agent runs ``N`` episodes on the seeds ``S, S+1, …, S+N−1`` of the task
 ``--env`` (an env id, or a family for its newest version; the same seeds for
@@ -41,7 +41,8 @@ The package's modules: :mod:`~agents.evaluate.rollout` (running the
 episodes), :mod:`~agents.evaluate.batched` (running them batched),
 :mod:`~agents.evaluate.statistics` (intervals and paired
 differences), :mod:`~agents.evaluate.report` (tables, plot, files, stored
-runs), :mod:`~agents.evaluate.schema` (the names below) and
+runs), :mod:`~agents.evaluate.journal` (the kept tasks of a run, its
+manifest), :mod:`~agents.evaluate.schema` (the names below) and
 :mod:`~agents.evaluate.cli` (the command line). Every public name of them is
 importable from :mod:`agents.evaluate`.
 
@@ -112,6 +113,21 @@ the evaluation, never by the agents). Written to ``--out`` (default
 ``map_error.png``
     The mean map error over time per agent with its 95 % band.
 
+``manifest.json``
+    Written last (:func:`~agents.evaluate.journal.write_manifest`): the
+    command, its configuration, the version and every file with its SHA-256.
+    A folder without one holds no finished run, and :func:`read_run` (so
+    ``--stored-run``) refuses it.
+
+Every file is written whole or not at all (:mod:`seif_gym._atomic`). While a
+run goes on, its folder holds ``.journal/``, each task's episodes kept as it
+finishes (:class:`~agents.evaluate.journal.RunJournal`): a run killed at any
+moment goes on with the same arguments and ``--resume OUT``, running only
+what it had not finished, to the files of a run left alone (but for
+``decision_time_ms``). Every input is checked before any episode runs and
+before anything is written (:mod:`agents.cli`): a bad one exits with status 2
+and one line naming the option or the file.
+
 The Markdown table of the means ± CI half-widths and the table of the
 paired differences (:func:`paired_table`) are printed and also written to
 ``summary.md``. Progress goes to stderr (``--quiet``: none).
@@ -124,12 +140,22 @@ from __future__ import annotations
 
 from agents.evaluate.batched import BATCHED_BASELINES, batch_env, batch_refusal, run_batched_episodes
 from agents.evaluate.cli import main
+from agents.evaluate.journal import (
+    ResumeError,
+    RunFinished,
+    RunJournal,
+    UnfinishedRunError,
+    read_manifest,
+    verify_manifest,
+    write_manifest,
+)
 from agents.evaluate.report import (
     load_stored_run,
     markdown_table,
     paired_table,
     plot_map_error,
     read_run,
+    save_figure,
     signed,
     signed_interval,
     write_outputs,
@@ -214,6 +240,14 @@ __all__ = [
     "recipe_comparison",
     "read_run",
     "load_stored_run",
+    "RunJournal",
+    "ResumeError",
+    "RunFinished",
+    "UnfinishedRunError",
+    "read_manifest",
+    "verify_manifest",
+    "write_manifest",
+    "save_figure",
     "evaluate_agents",
     "write_outputs",
     "plot_map_error",

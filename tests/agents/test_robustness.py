@@ -145,8 +145,12 @@ def test_the_recording_options_moved_to_agents_robustness(capsys):
     with pytest.raises(SystemExit):
         harness.main(["--policies", "random", "--seeds", "2"])
     assert "python -m agents.robustness" in capsys.readouterr().err
-    with pytest.raises(SystemExit):
-        harness.main(["--episodes-dir", "/no/such/folder"])
+    try:  # a data error: exit status 2 and one line (returned, or through SystemExit)
+        status = harness.main(["--episodes-dir", "/no/such/folder"])
+    except SystemExit as exit_:
+        status = exit_.code
+    assert status == 2
+    assert "episodes: no file or folder /no/such/folder" in capsys.readouterr().err
 
 
 def test_parse_filter():

@@ -28,7 +28,14 @@ from seif_gym.slam.simulation import SimulatedRun, simulate_run
 from seif_gym.type_aliases import FloatArray
 from seif_gym.validation import as_count, as_finite_array, as_nonnegative_scalar, as_positive_scalar
 
-__all__ = ["LoopScenario", "FIDELITY_SCENARIOS", "loop_path_controls", "loop_landmarks", "make_loop_run"]
+__all__ = [
+    "LoopScenario",
+    "FIDELITY_SCENARIOS",
+    "ASSOCIATION_SCENARIOS",
+    "loop_path_controls",
+    "loop_landmarks",
+    "make_loop_run",
+]
 
 
 SHAPES = ("circle", "rectangle", "figure8")
@@ -110,6 +117,31 @@ FIDELITY_SCENARIOS: dict[str, LoopScenario] = {
     "rectangle-large": LoopScenario(
         shape="rectangle", size=18.0, landmark_spacing=2.5, band=3.5, sensor_range=6.0, fov=math.pi, laps=1.15
     ),
+}
+
+
+#: Thrun's alphas of the association scenarios (Probabilistic Robotics, table 5.3's model).
+THRUN_MOTION_NOISE = (0.01, 0.001, 0.001, 0.01, 1e-4, 1e-4)
+
+#: Runs of unknown correspondences (``benchmarks/association.py``). ``"family-a"``: a circle of radius 8 m
+#: driven at 1.2 m/s and 0.15 rad/s for 700 steps of 0.1 s (1.67 laps) through about 60 landmarks within
+#: 3.5 m of the path, at least 1 m apart; a 3.5 m, 180 degree sensor with 0.1 m and 0.02 rad noise.
+ASSOCIATION_SCENARIOS: dict[str, LoopScenario] = {
+    "family-a": LoopScenario(
+        shape="circle",
+        size=8.0,
+        laps=70.0 * 0.15 / (2.0 * math.pi),
+        speed=1.2,
+        dt=0.1,
+        landmark_spacing=math.sqrt(2.0 * math.pi * 8.0 * 7.0 / 60.0),
+        band=3.5,
+        min_separation=1.0,
+        sensor_range=3.5,
+        fov=math.pi,
+        sigma_range=0.1,
+        sigma_bearing=0.02,
+        motion_noise=THRUN_MOTION_NOISE,
+    ),  # fmt: skip
 }
 
 

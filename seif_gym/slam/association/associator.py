@@ -188,6 +188,24 @@ class Associator:
         joint marginal of ``m_old - m_new`` (the ``gate``), it is merged into
         the old one; after ``closure_window`` scans it stays a landmark of its
         own.
+    open_tentatives : bool
+        With ``tentative_closures``: tentative landmarks are candidates like
+        any other (the map is not read as without them), and each deferred
+        lone closure starts its own tentative landmark (none is handed to
+        another's). A tentative landmark chosen in the same joint hypothesis
+        as its old landmark (by another measurement of the scan) is a
+        landmark of its own: it is confirmed at once and never merged. One is
+        merged into its old landmark once a closure has been accepted since it
+        started, the two pass the correspondence test on the marginal of
+        ``m_old - m_new`` (the ``gate``) *and* the test can tell landmarks
+        ``landmark_separation`` apart (the gate's ellipse,
+        ``sqrt(gate lambda_max)``, is narrower than the separation); two
+        landmarks ever chosen in one scan are never merged. A tentative
+        landmark neither merged nor confirmed after ``tentative_scans`` scans
+        stays a landmark of its own.
+    tentative_scans : int
+        With ``open_tentatives``: scans a tentative landmark waits for its
+        resolution.
     exclusion_margin : float or None
         Mutual exclusion for new landmarks (step 7): a landmark taken by
         another measurement of the scan whose ``d2`` is smaller by at least
@@ -240,6 +258,8 @@ class Associator:
         merge_rotation: float = 10.0,
         merge_shift: float = 3.0,
         tentative_closures: bool = False,
+        open_tentatives: bool = False,
+        tentative_scans: int = 400,
         exclusion_margin: float | None = None,
         joint_objective: str = "pairings",
     ) -> None:
@@ -274,6 +294,7 @@ class Associator:
             ("merge_recent", merge_recent, 1),
             ("merge_inliers", merge_inliers, 2),
             ("merge_margin", merge_margin, 0),
+            ("tentative_scans", tentative_scans, 1),
         ):
             as_count(value, name, minimum=low)
         self.gate = float(gate)
@@ -298,10 +319,18 @@ class Associator:
         self.closure_age = int(closure_age)
         self.closure_pairings = int(closure_pairings)
         self.closure_window = int(closure_window)
-        for name, flag in (("loop_merge", loop_merge), ("tentative_closures", tentative_closures)):
+        flags = (("loop_merge", loop_merge), ("tentative_closures", tentative_closures),
+                 ("open_tentatives", open_tentatives))  # fmt: skip
+        for name, flag in flags:
             if not isinstance(flag, bool):
                 raise TypeError(f"{name} must be a bool, got {type(flag).__name__}")
+        if open_tentatives and not tentative_closures:
+            raise ValueError("open_tentatives needs tentative_closures=True")
         self.tentative_closures = tentative_closures
+        self.open_tentatives = open_tentatives
+        self.tentative_scans = int(tentative_scans)
+        #: open_tentatives: tentative landmark id -> the landmark ids chosen in a scan with it (never its double)
+        self._coseen: dict[int, set[int]] = {}
         if exclusion_margin is not None:
             if isinstance(exclusion_margin, bool) or not isinstance(exclusion_margin, (int, float)):
                 raise TypeError(f"exclusion_margin must be a number or None, got {type(exclusion_margin).__name__}")
@@ -385,7 +414,7 @@ class Associator:
         self._last_points = points
         radii = self.candidate_radius + 3.0 * (spread + ranges * sigma_theta)
         pair_meas, pair_landmark, euclid2 = _candidates(landmarks, points, radii)
-        if self.tentatives and len(pair_meas):
+        if self.tentatives and len(pair_meas) and not self.open_tentatives:
             # a tentative landmark is no candidate: the association and the closure decision see the map
             # as without it, and the measurements deferred for its old landmark go to it (associate)
             tentative_ids = np.fromiter(self.tentatives, dtype=np.int64, count=len(self.tentatives))
@@ -478,6 +507,8 @@ class Associator:
             chosen = pair_of[r_idx[ok], c_idx[ok]]
             if self.joint and len(rows) > 1 or self.landmark_density > 0.0:
                 chosen = self._joint_decision(gated, chosen, pair_meas, pair_landmark, logdet, euclid2)
+            if self.open_tentatives and self.tentatives and len(chosen):
+                self._confirm_tentatives(filt.landmark_ids[pair_landmark[chosen]])
             if self.joint and self.closure_age > 0 and self.closure_pairings > 1 and len(chosen):
                 chosen = self._defer_lone_closures(filt, chosen, pair_landmark)
             ids[pair_meas[chosen]] = filt.landmark_ids[pair_landmark[chosen]]
@@ -489,25 +520,40 @@ class Associator:
         considered = self._unexcluded(pair_meas, pair_landmark, d2, chosen)
         np.minimum.at(best, pair_meas[considered], d2[considered])
         new = (ids < 0) & (best > new_threshold)
+        blocked = np.zeros(m, dtype=bool)
         if self.min_separation > 0.0 and len(pair_meas):
             # and not closer than min_separation to a mapped landmark (a physical prior on the map)
-            near = euclid2 < self.min_separation**2
-            new[pair_meas[near]] = False
+            blocked[pair_meas[euclid2 < self.min_separation**2]] = True
+            new &= ~blocked
         tentative: dict[int, int] = {}  # measurement -> the old landmark id it was deferred from
         if self.tentative_closures and len(self._deferred):
             pending = {old_id: new_id for new_id, (old_id, _) in self.tentatives.items()}
             for k in self._deferred.tolist():
                 measurement, old_id = int(pair_meas[k]), int(filt.landmark_ids[pair_landmark[k]])
-                if old_id in pending:  # the old landmark's tentative double takes it
+                if old_id in pending and not self.open_tentatives:  # the old landmark's tentative double takes it
                     ids[measurement] = pending[old_id]
                     deferred_to_tentative += 1
                 else:
                     tentative[measurement] = old_id
             new[list(tentative)] = True
+        if self.open_tentatives and len(pair_meas):
+            # an ambiguous measurement (inside a gate, yet not taken) starts a tentative landmark, the double of
+            # the landmark it is closest to in d2, rather than being thrown away; the resolution decides later
+            ambiguous = (ids < 0) & ~new & ~blocked
+            if ambiguous.any():
+                order = np.lexsort((d2, pair_meas))
+                first = order[np.r_[True, pair_meas[order][1:] != pair_meas[order][:-1]]]
+                for k in first[ambiguous[pair_meas[first]]].tolist():
+                    tentative[int(pair_meas[k])] = int(filt.landmark_ids[pair_landmark[k]])
+                new[ambiguous] = True
         count_new = int(new.sum())
         ids[new] = self.next_id + np.arange(count_new)
         for k, old_id in tentative.items():
             self.tentatives[int(ids[k])] = (old_id, self.stats.scans + 1)
+        if self.open_tentatives and self.tentatives:
+            seen = set(ids[ids >= 0].tolist())
+            for i in seen.intersection(self.tentatives):
+                self._coseen.setdefault(i, set()).update(seen - {i})
         self.created = {int(i): int(k) for k, i in zip(np.flatnonzero(new).tolist(), ids[new].tolist())}
         self.next_id += count_new
         stats = self.stats
@@ -546,6 +592,19 @@ class Associator:
         excluded = hit & (taken_meas[pos] != pair_meas) & (d2 - taken_d2[pos] >= self.exclusion_margin)
         return ~excluded
 
+    def _confirm_tentatives(self, hypothesis: IntArray) -> None:
+        """``open_tentatives``: a tentative landmark chosen with its own old landmark is a landmark of its own.
+
+        ``hypothesis`` holds the landmark ids of the scan's joint hypothesis (before lone closures are deferred):
+        two of its landmarks are measured by two measurements, so they are two landmarks.
+        """
+        chosen = set(hypothesis.tolist())
+        for i in chosen.intersection(self.tentatives):
+            self._coseen.setdefault(i, set()).update(chosen - {i})
+            if self.tentatives[i][0] in chosen:
+                del self.tentatives[i]
+                self._coseen.pop(i, None)
+
     def _merge(self, filt: SlamFilter, keep: int, remove: int) -> None:
         """``filt.merge_landmarks(keep, remove)`` and the associator's own records of ``remove`` folded into ``keep``."""
         filt.merge_landmarks(keep, remove)
@@ -553,6 +612,12 @@ class Associator:
         self.started.pop(remove, None)
         self.tentatives.pop(remove, None)
         self.signatures.merge(keep, remove)
+        if self._coseen:
+            self._coseen.pop(remove, None)
+            for others in self._coseen.values():
+                if remove in others:
+                    others.discard(remove)
+                    others.add(keep)
 
     def _merge_copies(self, filt: SlamFilter) -> list[tuple[int, int]]:
         """Step 8: merge recent landmarks that form a rigid copy of old ones into them (``loop_merge``).
@@ -601,25 +666,35 @@ class Associator:
         gate = self._thresholds[2][0]
         merges = []
         landmarks = None  # the map's means, read once per call (and again after a merge reorders them)
+        life = self.tentative_scans if self.open_tentatives else self.closure_window
         for new_id, (old_id, started) in list(self.tentatives.items()):
+            if new_id not in self.tentatives:  # confirmed by a merge of this call
+                continue
             try:
                 i, j = filt.landmark_index(old_id), filt.landmark_index(new_id)
             except KeyError:  # merged away meanwhile (a copy of the old map)
                 del self.tentatives[new_id]
+                self._coseen.pop(new_id, None)
                 continue
-            if max(self.last_seen.get(old_id, 0), self._closure_accepted) >= started:  # a closure accepted since
+            distinct = self.open_tentatives and old_id in self._coseen.get(new_id, ())
+            if not distinct and max(self.last_seen.get(old_id, 0), self._closure_accepted) >= started:
+                # a closure accepted since: the correspondence test on m_old - m_new
                 joint = self._joint_covariance(filt, np.array([i, j], dtype=np.int64))
                 difference_cov = joint[3:5, 3:5] + joint[5:7, 5:7] - joint[3:5, 5:7] - joint[5:7, 3:5]
                 if landmarks is None:
                     landmarks = filt.landmarks
                 difference = landmarks[i] - landmarks[j]
-                if float(difference @ np.linalg.solve(difference_cov, difference)) <= gate:
+                passes = float(difference @ np.linalg.solve(difference_cov, difference)) <= gate
+                if passes and self.open_tentatives:  # and only when it would fail for two separate landmarks
+                    passes = gate * float(np.linalg.eigvalsh(difference_cov)[-1]) < self.landmark_separation**2
+                if passes:
                     self._merge(filt, old_id, new_id)
                     merges.append((old_id, new_id))
                     landmarks = None
                     continue
-            if now - started > self.closure_window:
+            if distinct or now - started > life:
                 del self.tentatives[new_id]
+                self._coseen.pop(new_id, None)
         self.stats.merged += len(merges)
         return merges
 

@@ -36,7 +36,7 @@ whatever the rest of the map holds. See :class:`ConservativeSEIF`, Notes, for
 how the split is kept through every step.
 
 Every step costs time in the size of the active set (at most
-``max_active_hard`` landmarks), never in the size of the map; memory is the
+``max(max_active_hard, |scan|)`` landmarks), never in the size of the map; memory is the
 SEIF's plus one ``2a x 2a`` matrix for ``a`` active landmarks.
 """
 
@@ -227,10 +227,12 @@ class ConservativeSEIF(SEIF):
         certified cut first) until at most ``k`` remain. ``None`` never
         sparsifies (the filter is then the exact EIF).
     max_active_hard : int or None, default None
-        The hard bound on the active set (at least ``max_active``; ``None``:
-        ``2 max_active``). When no cut can be certified the active set may grow
-        past ``k`` up to this bound; a measurement that would take it further
-        is left out (counted in ``discarded_measurements``).
+        ``H``, the hard bound on the active set (at least ``max_active``;
+        ``None``: ``2 max_active``). When no cut can be certified the active
+        set may grow past ``k`` up to ``max(H, |scan|)``; a measurement of a
+        landmark not yet active that would take it further is left out
+        (counted in ``discarded_measurements``). Every step thus costs time in
+        ``max(H, |scan|)``.
     cut_budget : float, default 0.9
         ``c_max`` in ``(0, 1)``: a cut must satisfy ``S <= c Omega_B`` with
         ``c <= c_max`` (see Notes); the filter's information then stays above
@@ -327,7 +329,10 @@ class ConservativeSEIF(SEIF):
             self.discarded_measurements += len(kept) - int(np.count_nonzero(kept))
 
     def _within_hard_bound(self, ranges: FloatArray, ids: NDArray[np.int64]) -> NDArray[np.bool_] | None:
-        """Mask of the measurements to keep (``None``: all): the active ones, then mapped, then the nearest."""
+        """Mask of the measurements to keep (``None``: all): the active ones, then mapped, then the nearest.
+
+        After the update at most ``max(max_active_hard, |scan|)`` landmarks are active.
+        """
         if self.max_active_hard is None or len(ids) == 0:
             return None
         indices = np.array([self._id_to_index.get(i, -1) for i in ids.tolist()], dtype=np.int64)
@@ -335,7 +340,7 @@ class ConservativeSEIF(SEIF):
         active = np.zeros(len(ids), dtype=bool)
         active[mapped] = self._is_active[indices[mapped]]
         others = np.flatnonzero(~active)
-        room = self.max_active_hard - len(self._active)
+        room = max(self.max_active_hard, len(np.unique(ids))) - len(self._active)
         if len(np.unique(ids[others])) <= room:
             return None
         order = np.lexsort((ranges[others], ~mapped[others]))  # mapped first, then the nearest

@@ -1,9 +1,11 @@
-"""Fidelity of the approximate filters: SEIF and ESEIF against the EKF on loop-closing runs.
+"""Fidelity of the approximate filters: SEIF, ESEIF and ConservativeSEIF against the EKF on loop-closing runs.
 
 Usage::
 
     python benchmarks/fidelity.py                              # 6 scenarios x 3 seeds, k = 4, 8, 16
     python benchmarks/fidelity.py --seeds 5 --ks 8 --json fidelity.json --markdown fidelity.md
+    python benchmarks/fidelity.py --families A B C             # issue #57's families, held-out seeds 100-105
+    python benchmarks/fidelity.py --families A B C --family-seeds 0 1 2   # the seeds the CSEIF was designed on
 
 Runs: the family :data:`seif_gym.slam.scenarios.FIDELITY_SCENARIOS` (a circle,
 a rounded rectangle and a figure eight, each with a dense landmark field and an
@@ -18,7 +20,15 @@ Filters, for each ``k`` of ``--ks``:
 * ``SEIF``: the default SEIF (wavefront mean recovery);
 * ``SEIF amortized``: Thrun's round-robin recovery (what ``SeifExplore-v0`` runs);
 * ``SEIF exact mean``: ``mean_recovery="exact"`` (a sparse solve every update);
-* ``ESEIF``: the default ESEIF; ``ESEIF amortized`` and ``ESEIF exact mean`` likewise.
+* ``ESEIF``: the default ESEIF; ``ESEIF amortized`` and ``ESEIF exact mean`` likewise;
+* ``CSEIF``: the default ConservativeSEIF; ``CSEIF exact mean`` likewise.
+
+``--families`` runs, instead, the loop families of issue #57 (:func:`family_run`:
+Thrun's velocity model, a circle driven at constant speed and turn rate, known
+correspondences) through the EKF and the four filters' defaults (``k = 8``),
+and prints per family the mean map RMSE, its ratio to the EKF's and the worst
+per-run ratio. Seeds 0-2 of each family designed the ConservativeSEIF; the
+default ``--family-seeds`` (100-105) were never used while designing it.
 
 Columns (means over all runs):
 
@@ -52,6 +62,7 @@ for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS", "NUMB
 
 import argparse  # noqa: E402
 import json  # noqa: E402
+import math  # noqa: E402
 import platform  # noqa: E402
 import sys  # noqa: E402
 import time  # noqa: E402
@@ -61,8 +72,9 @@ import numpy as np  # noqa: E402
 from scipy.stats import chi2  # noqa: E402
 
 from seif_gym.metrics import pose_nees  # noqa: E402
-from seif_gym.slam import EKF, ESEIF, SEIF  # noqa: E402
+from seif_gym.slam import EKF, ESEIF, SEIF, ConservativeSEIF, RangeBearingSensor, VelocityMotionModel  # noqa: E402
 from seif_gym.slam.scenarios import FIDELITY_SCENARIOS, make_loop_run  # noqa: E402
+from seif_gym.slam.simulation import SimulatedRun, simulate_run  # noqa: E402
 
 #: (label, class, options); ``max_active`` is added per k (not for the EKF).
 FILTERS = [
@@ -73,7 +85,80 @@ FILTERS = [
     ("ESEIF", ESEIF, {}),
     ("ESEIF amortized", ESEIF, {"mean_recovery": "amortized"}),
     ("ESEIF exact mean", ESEIF, {"mean_recovery": "exact"}),
+    ("CSEIF", ConservativeSEIF, {}),
+    ("CSEIF exact mean", ConservativeSEIF, {"mean_recovery": "exact"}),
 ]
+
+# ---------------------------------------------------------------------------
+# issue #57's loop families
+# ---------------------------------------------------------------------------
+#: (speed m/s, turn rate rad/s, steps, landmarks, smallest landmark spacing m, sensor range m) of each family.
+#: A: 700 steps of a circle (radius 8 m) through 60 landmarks at least 1 m apart; B: the same with landmarks
+#: anywhere (no spacing); C: 400 steps of a circle of radius 5 m, 30 landmarks, a 5 m sensor. All: Thrun's
+#: alphas (0.01, 0.001, 0.001, 0.01, 1e-4, 1e-4), a 180 degree sensor with sigma 0.1 m and 0.02 rad, dt 0.1 s,
+#: landmarks uniform in the band within 3 m of the path.
+FAMILIES: dict[str, tuple[float, float, int, int, float, float]] = {
+    "A": (1.2, 0.15, 700, 60, 1.0, 3.5),
+    "B": (1.2, 0.15, 700, 60, 0.0, 3.5),
+    "C": (1.0, 0.2, 400, 30, 1.0, 5.0),
+}
+#: Seeds that designed the ConservativeSEIF, and seeds never used while designing it (the default).
+FAMILY_DESIGN_SEEDS = (0, 1, 2)
+FAMILY_HELD_OUT_SEEDS = (100, 101, 102, 103, 104, 105)
+#: The filters of the family table: every filter's defaults (k = 8).
+FAMILY_FILTERS = [("EKF", EKF), ("SEIF", SEIF), ("ESEIF", ESEIF), ("CSEIF", ConservativeSEIF)]
+
+
+def family_run(family: str, seed: int) -> tuple[VelocityMotionModel, RangeBearingSensor, SimulatedRun]:
+    """One run of ``family`` (a key of :data:`FAMILIES`): landmarks first, then all noise, from ``default_rng(seed)``."""
+    speed, turn, steps, count, spacing, sensor_range = FAMILIES[family]
+    rng = np.random.default_rng(seed)
+    motion = VelocityMotionModel(alphas=(0.01, 0.001, 0.001, 0.01, 1e-4, 1e-4))
+    sensor = RangeBearingSensor(sigma_range=0.1, sigma_bearing=0.02, max_range=sensor_range, fov=math.pi)
+    radius = speed / turn
+    points: list[np.ndarray] = []
+    while len(points) < count:  # uniform in the annulus radius +- 3 m, at least ``spacing`` apart
+        r = math.sqrt(rng.uniform((radius - 3.0) ** 2, (radius + 3.0) ** 2))
+        angle = rng.uniform(0.0, 2.0 * math.pi)
+        point = np.array([r * math.cos(angle), r * math.sin(angle)])
+        if all(math.hypot(*(point - other)) >= spacing for other in points):
+            points.append(point)
+    controls = np.tile([speed, turn], (steps, 1))
+    run = simulate_run(motion, sensor, np.array(points), controls, 0.1, [radius, 0.0, math.pi / 2], rng)
+    return motion, sensor, run
+
+
+def run_family_job(job: tuple[str, int]) -> tuple[str, int, dict[str, dict[str, float]]]:
+    """Every filter of :data:`FAMILY_FILTERS` on one run of a family (one process)."""
+    family, seed = job
+    motion, sensor, run = family_run(family, seed)
+    out: dict[str, dict[str, float]] = {}
+    reference = None
+    for label, cls in FAMILY_FILTERS:
+        out[label], final_map = score_run(cls(motion, sensor, run.initial_pose), run, reference)
+        if cls is EKF:
+            reference = final_map
+    return family, seed, out
+
+
+def family_table(results: list[tuple[str, int, dict]]) -> str:
+    """Per family and over all runs: mean map RMSE of each filter, its ratio to the EKF's, the worst run's ratio."""
+    labels = [label for label, _ in FAMILY_FILTERS]
+    lines = [
+        "| family | runs | " + " | ".join(f"{label} map RMSE (m)" for label in labels) + " | "
+        + " | ".join(f"{label} × EKF (worst run)" for label in labels[1:]) + " |",
+        "|---" * (2 + len(labels) + len(labels) - 1) + "|",
+    ]  # fmt: skip
+    families = sorted({r[0] for r in results})
+    for name in [*families, "all"]:
+        runs = [r for r in results if name in ("all", r[0])]
+        ekf = np.array([r[2]["EKF"]["map_rmse"] for r in runs])
+        cells = [f"{np.mean([r[2][label]['map_rmse'] for r in runs]):.3f}" for label in labels]
+        for label in labels[1:]:
+            values = np.array([r[2][label]["map_rmse"] for r in runs])
+            cells.append(f"{values.mean() / ekf.mean():.2f} ({np.max(values / ekf):.2f})")
+        lines.append(f"| {name} | {len(runs)} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
 
 
 def score_run(
@@ -183,7 +268,14 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--jobs", type=int, default=min(2, os.cpu_count() or 1), help="worker processes")
     parser.add_argument("--json", help="write the per-run results and the summary here")
     parser.add_argument("--markdown", help="write the summary table here")
+    parser.add_argument("--families", nargs="+", choices=list(FAMILIES),
+                        help="run issue #57's loop families instead of the scenarios (every filter's defaults)")  # fmt: skip
+    parser.add_argument("--family-seeds", type=int, nargs="+", default=list(FAMILY_HELD_OUT_SEEDS),
+                        help="seeds of each family (default: 100-105, never used to design the ConservativeSEIF; "
+                        "0-2 designed it)")  # fmt: skip
     args = parser.parse_args(argv)
+    if args.families:
+        return main_families(args)
     if args.seeds < 1 or args.jobs < 1 or any(k < 2 for k in args.ks):
         parser.error("--seeds and --jobs must be positive and every k at least 2")
     ks = tuple(args.ks)
@@ -204,6 +296,31 @@ def main(argv: list[str] | None = None) -> int:
         with open(args.json, "w") as handle:
             json.dump({"command": " ".join(sys.argv), "summary": rows,
                        "runs": [{"scenario": n, "seed": s, "filters": r} for n, s, r in results]}, handle, indent=1)  # fmt: skip
+    return 0
+
+
+def main_families(args: argparse.Namespace) -> int:
+    """``--families``: the family table on ``--family-seeds``."""
+    if args.jobs < 1 or any(seed < 0 for seed in args.family_seeds):
+        raise SystemExit("--jobs must be positive and --family-seeds non-negative")
+    jobs = [(family, seed) for family in args.families for seed in args.family_seeds]
+    started = time.perf_counter()
+    with ProcessPoolExecutor(args.jobs) as pool:
+        results = list(pool.map(run_family_job, jobs))
+    elapsed = time.perf_counter() - started
+    design = sorted(set(args.family_seeds) & set(FAMILY_DESIGN_SEEDS))
+    kind = "design seeds" if design == sorted(args.family_seeds) else ("held-out seeds" if not design else "mixed")
+    table = family_table(results)
+    print(f"# Families {' '.join(args.families)}, seeds {' '.join(map(str, args.family_seeds))} ({kind}); "
+          f"every filter's defaults ({elapsed:.0f} s, {args.jobs} jobs, Python {platform.python_version()})")  # fmt: skip
+    print(table)
+    if args.markdown:
+        with open(args.markdown, "w") as handle:
+            handle.write(table + "\n")
+    if args.json:
+        with open(args.json, "w") as handle:
+            json.dump({"command": " ".join(sys.argv), "seeds": kind,
+                       "runs": [{"family": f, "seed": s, "filters": r} for f, s, r in results]}, handle, indent=1)  # fmt: skip
     return 0
 
 

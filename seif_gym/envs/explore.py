@@ -485,7 +485,7 @@ class SeifExploreEnv(gym.Env):
         options: dict[str, Any] = {}
         if config.innovation_gate is not None:  # every filter takes it; left out, the filter is as before
             options["innovation_gate"] = config.innovation_gate
-        if config.filter not in ("seif", "eseif"):
+        if config.filter not in ("seif", "eseif", "cseif"):
             return options
         return {"max_active": config.max_active, "mean_recovery": config.mean_recovery, **options}
 

@@ -623,10 +623,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         seeds = check_seeds(args.seed, args.episodes)
         if "layout" in args.env_kwargs:
             raise ValueError("--env-kwargs: give the layout with --layouts, not in --env-kwargs")
-        choices: list[str | None] = list(layouts) if layouts else [None]
-        for layout in choices:
-            fixed: dict[str, Any] = {"max_episode_steps": args.steps, **({} if layout is None else {"layout": layout})}
-            check_env(args.env, args.env_kwargs, **fixed)
+        check_env(args.env, args.env_kwargs, max_episode_steps=args.steps)
+        for layout in layouts or []:
+            check_env(args.env, args.env_kwargs, f"--layouts: {layout}", max_episode_steps=args.steps, layout=layout)
         out, resume = resume_folder(args, "eval/robustness")
     paired_metrics = _split(args.paired_metrics)
     if args.paired_against is not None:

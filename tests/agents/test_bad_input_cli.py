@@ -179,9 +179,13 @@ def test_env_arguments_the_env_refuses_are_answered_first(command, tmp_path, cap
     assert not (tmp_path / "out").exists()
 
 
-def test_robustness_filters_are_answered_first(tmp_path, capsys):
+def test_robustness_filters_and_layouts_are_answered_first(tmp_path, capsys):
     message = refused("robustness", [*BASE["robustness"], "--filters", "nofilter", "--out", str(tmp_path)], capsys)
     assert message.startswith("--filters: ") and "nofilter" in message
+    message = refused("robustness", [*BASE["robustness"], "--env", "SeifExploreMRCLAM", "--layouts", "loop",
+                                     "--out", str(tmp_path / "out")], capsys)  # fmt: skip
+    assert message == "--layouts: loop: layout 'loop' needs a square arena (arena_extent=None)"
+    assert not (tmp_path / "out").exists()
 
 
 @pytest.mark.parametrize("command", ["evaluate", "benchmark", "robustness", "showcase"])

@@ -93,3 +93,25 @@ def test_showcase_takes_a_shipped_policy_by_name(capsys):
     with pytest.raises(SystemExit):
         showcase_main(["--policy", "nobody", "--episodes", "1"])
     assert "--policy: 'nobody' is neither a shipped policy (ppo," in capsys.readouterr().err
+
+
+def test_every_long_command_takes_resume_and_checks_its_input_first(capsys):
+    """``--resume OUT`` on each comparison; the shared checks of ``agents.cli`` behind them."""
+    import argparse
+
+    from agents import cli, showcase
+
+    helps = {"evaluate": evaluate_parser().format_help(), "benchmark": benchmark._parser().format_help(),
+             "robustness": robustness._parser().format_help()}  # fmt: skip
+    with pytest.raises(SystemExit):
+        showcase.main(["--help"])
+    helps["showcase"] = capsys.readouterr().out
+    for command, text in helps.items():
+        assert "--resume OUT" in text, command
+    assert cli.seed("0") == 0 and cli.positive_int("3") == 3 and cli.non_negative_int("0") == 0
+    for convert, text in ((cli.seed, "-1"), (cli.positive_int, "0"), (cli.non_negative_int, "-1"), (cli.seed, "1.5")):
+        with pytest.raises(argparse.ArgumentTypeError):
+            convert(text)
+    assert cli.check_seeds(3, 2) == [3, 4]
+    with pytest.raises(ValueError, match="--seed: the seeds"):
+        cli.check_seeds(cli.MAX_SEED, 2)

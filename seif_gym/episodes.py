@@ -54,6 +54,8 @@ import gymnasium as gym
 import numpy as np
 from numpy.typing import ArrayLike, DTypeLike, NDArray
 
+from seif_gym._atomic import atomic_write
+from seif_gym.datasets._files import load_npz
 from seif_gym.envs.explore import SeifExploreEnv, make_models
 from seif_gym.metrics import filter_map_error  # the env's E_t: identical bits
 from seif_gym.slam import FILTERS, RangeBearingSensor, SlamFilter, VelocityMotionModel
@@ -270,33 +272,50 @@ class Episode:
         path = Path(path)
         if path.suffix != ".npz":
             path = path.with_name(path.name + ".npz")
-        np.savez_compressed(
-            path,
-            format_version=np.array(FORMAT_VERSION, dtype=np.int64),
-            config=np.array(_json_config(self.config)),
-            seed=np.array(json.dumps(self.seed)),
-            dt=np.array(self.dt, dtype=np.float64),
+        arrays = {
+            "format_version": np.array(FORMAT_VERSION, dtype=np.int64),
+            "config": np.array(_json_config(self.config)),
+            "seed": np.array(json.dumps(self.seed)),
+            "dt": np.array(self.dt, dtype=np.float64),
             **{name: getattr(self, name) for name in _ARRAYS},
-        )
-        return path
+        }
+
+        def write(temporary: Path) -> None:
+            with open(temporary, "wb") as handle:  # a handle: numpy appends no suffix to it
+                np.savez_compressed(handle, **arrays)
+
+        return atomic_write(path, write)  # whole or not at all
 
     @classmethod
     def load(cls, path: str | os.PathLike[str]) -> Episode:
-        """Read an episode written by :meth:`save` (``allow_pickle=False``)."""
-        with np.load(Path(path), allow_pickle=False) as data:
-            missing = sorted({"format_version", "config", "seed", "dt", *_ARRAYS} - set(data.files))
-            if missing:
-                raise ValueError(f"{path} is not a saved Episode: missing {', '.join(missing)}")
-            version = int(data["format_version"])
-            if version != FORMAT_VERSION:
-                raise ValueError(f"{path} has episode format {version}; this version reads {FORMAT_VERSION}")
-            seed = json.loads(str(data["seed"]))
-            return cls(
-                config=_config_from_json(str(data["config"])),
-                seed=seed,
-                dt=float(data["dt"]),
-                **{name: data[name] for name in _ARRAYS},
-            )
+        """Read an episode written by :meth:`save` (``allow_pickle=False``).
+
+        Raises
+        ------
+        FileNotFoundError
+            If ``path`` does not exist.
+        ValueError
+            One line naming the file: not a readable ``.npz`` archive (corrupt, truncated, another
+            format; pickles are never loaded), an array missing or unreadable, or another format version.
+        """
+        path = Path(path)
+        if not path.is_file():
+            raise FileNotFoundError(f"{path}: no such episode file")
+        names = ["format_version", "config", "seed", "dt", *_ARRAYS]
+        data = load_npz(path, [], optional=names)
+        missing = [name for name in names if name not in data]
+        if missing:
+            raise ValueError(f"{path} is not a saved Episode: missing {', '.join(missing)}")
+        version = int(data["format_version"])
+        if version != FORMAT_VERSION:
+            raise ValueError(f"{path} has episode format {version}; this version reads {FORMAT_VERSION}")
+        seed = json.loads(str(data["seed"]))
+        return cls(
+            config=_config_from_json(str(data["config"])),
+            seed=seed,
+            dt=float(data["dt"]),
+            **{name: data[name] for name in _ARRAYS},
+        )
 
 
 def episode_models(

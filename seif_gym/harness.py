@@ -150,7 +150,7 @@ from scipy.stats import chi2
 
 import seif_gym  # noqa: F401  (registers the environments)
 from seif_gym._atomic import atomic_write, atomic_write_text
-from seif_gym.datasets._files import NPZ_ERRORS, OutputPathError, npz_problem, output_folder, save_figure, save_npz
+from seif_gym.datasets._files import OutputPathError, output_folder, save_figure, save_npz
 from seif_gym.envs.explore import SeifExploreEnv
 from seif_gym.episodes import Episode, EpisodeRecorder, replay
 from seif_gym.metrics import CHI2_975_3DOF, MIN_RELATIVE_LANDMARKS, _map_nees, pose_nees
@@ -547,20 +547,9 @@ def load_episodes(paths: Iterable[str | Path], limit: int | None = None) -> list
         raise ValueError("episodes: no .npz episode found")
     loaded = []
     for path in files[:limit]:
-        episode = _load_episode(path)
+        episode = Episode.load(path)  # one-line errors that name the file
         loaded.append((_episode_label(path, episode), episode))
     return loaded
-
-
-def _load_episode(path: Path) -> Episode:
-    """:meth:`Episode.load`, with one-line errors that name the file (never numpy's advice on pickles)."""
-    try:
-        return Episode.load(path)
-    except NPZ_ERRORS as error:
-        text = str(error)
-        if isinstance(error, ValueError) and str(path) in text and "pickle" not in text:
-            raise
-        raise ValueError(f"{path}: not a readable saved episode: {npz_problem(error)}") from None
 
 
 # -- aggregation ------------------------------------------------------------------------------------

@@ -166,7 +166,7 @@ def test_harness_refuses_a_damaged_episode_in_one_line(how, episode_file, tmp_pa
     out = tmp_path / "out"
     assert harness.main(["--episodes-dir", str(path), "--out", str(out), "--quiet"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and str(path) in err[0] and "not a readable saved episode" in err[0], err
+    assert len(err) == 1 and str(path) in err[0] and "not a readable .npz archive" in err[0], err
     assert "allow_pickle" not in err[0]
     assert not any(out.glob("*")) if out.exists() else True
 
@@ -258,3 +258,24 @@ def test_output_checks_name_the_argument(tmp_path):
     with pytest.raises(OutputPathError, match="is a folder"):
         output_file(tmp_path, "--out")
     assert output_file(tmp_path / "new" / "run.npz", "--out").parent.is_dir()
+
+
+def test_an_episode_is_saved_whole_or_not_at_all(episode_file, tmp_path, monkeypatch):
+    """A write that fails midway leaves the previous file and no temporary (Episode.save)."""
+    from seif_gym.episodes import Episode
+
+    episode = Episode.load(episode_file)
+    target = tmp_path / "kept.npz"
+    saved = episode.save(target)
+    assert saved == target
+    before = target.read_bytes()
+
+    def fail(handle, **arrays):
+        handle.write(b"PK\x03\x04 half an archive")
+        raise OSError("disk full")
+
+    monkeypatch.setattr(np, "savez_compressed", fail)
+    with pytest.raises(OSError, match="disk full"):
+        episode.save(target)
+    assert target.read_bytes() == before
+    assert [p.name for p in tmp_path.iterdir()] == ["kept.npz"]

@@ -73,7 +73,7 @@ def test_a_file_that_is_not_an_episode_is_named(episodes, tmp_path, capsys):
                           ("text.npz", b"not numpy\n" * 20)):  # fmt: skip
         path = tmp_path / name
         path.write_bytes(content)
-        with pytest.raises(ValueError, match=f"{path}: not a readable saved episode") as error:
+        with pytest.raises(ValueError, match=f"{path}: not a readable .npz archive") as error:
             harness.load_episodes([path])
         assert "allow_pickle" not in str(error.value)
     np.savez(tmp_path / "other.npz", x=np.zeros(3))

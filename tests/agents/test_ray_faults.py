@@ -17,6 +17,7 @@ Linux only (the Ray processes are found in ``/proc``); skipped without Ray.
 
 from __future__ import annotations
 
+import argparse
 import contextlib
 import csv
 import json
@@ -40,7 +41,7 @@ ray = pytest.importorskip("ray", reason="the optional 'ray' extra is not install
 from ray._private import ray_constants  # noqa: E402
 from ray.cluster_utils import Cluster  # noqa: E402
 
-from agents.parallel import Executor  # noqa: E402
+from agents.parallel import Executor, add_arguments, from_arguments  # noqa: E402
 
 pytestmark = [
     pytest.mark.slow,
@@ -172,7 +173,7 @@ def _untimed(path: Path) -> list[dict[str, str]]:
 
 # -- the harnesses ----------------------------------------------------------------------------------
 EVALUATE = ["--agents", "frontier,revisit", "--episodes", "4", "--env", "SeifExplore-v1", "--quiet"]
-EVALUATE += ["--env-kwargs", '{"max_episode_steps": 2000}']
+EVALUATE += ["--env-kwargs", '{"max_episode_steps": 1000}']
 
 
 def test_evaluate_finishes_after_the_worker_node_dies(nodes, tmp_path):
@@ -265,10 +266,27 @@ def test_a_task_exception_is_not_retried(driver, tmp_path):
     assert (tmp_path / "2.attempts").read_text() == "attempt\n"  # ran once: not retried
 
 
+@pytest.mark.parametrize("retries", [-1, 1.5, True, "3"])
+def test_executor_rejects_bad_retries(retries):
+    with pytest.raises(ValueError, match="retries"):
+        Executor(ray="auto", retries=retries)
+
+
+def test_ray_retries_option():
+    parser = argparse.ArgumentParser()
+    add_arguments(parser)
+    executor = from_arguments(parser.parse_args(["--ray", "127.0.0.1:6379", "--ray-retries", "0"]), parser)
+    assert executor.retries == 0 and executor.describe()["retries"] == 0
+    assert Executor(ray="auto").retries == 3 and Executor().describe()["retries"] is None
+    with pytest.raises(SystemExit) as stopped:
+        from_arguments(parser.parse_args(["--ray", "auto", "--ray-retries", "-1"]), parser)
+    assert stopped.value.code == 2
+
+
 # -- RLlib: an env runner dies ---------------------------------------------------------------------
 def test_rllib_training_survives_a_killed_env_runner(nodes, tmp_path):
     cluster, worker = nodes
-    steps = 64 * 40  # 40 iterations of 2 runners x 2 envs x 16 steps: time for the killed runner to come back
+    steps = 64 * 30  # 30 iterations of 2 runners x 2 envs x 16 steps: time for the killed runner to come back
     command = [sys.executable, "-m", "agents.rllib_train", "--address", cluster.address, "--env", "SeifExplore-v0"]
     command += ["--timesteps", str(steps), "--num-env-runners", "2", "--num-envs-per-env-runner", "2"]
     command += ["--train-batch-size", "64", "--minibatch-size", "32", "--num-epochs", "1", "--seed", "3"]

@@ -38,10 +38,10 @@ import pytest
 
 ray = pytest.importorskip("ray", reason="the optional 'ray' extra is not installed")
 
-from ray._private import ray_constants  # noqa: E402
-from ray.cluster_utils import Cluster  # noqa: E402
+from ray._private import ray_constants
+from ray.cluster_utils import Cluster
 
-from agents.parallel import Executor, add_arguments, from_arguments  # noqa: E402
+from agents.parallel import Executor, add_arguments, from_arguments
 
 pytestmark = [
     pytest.mark.slow,

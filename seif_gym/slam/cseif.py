@@ -237,7 +237,12 @@ class ConservativeSEIF(SEIF):
         ``c_max`` in ``(0, 1)``: a cut must satisfy ``S <= c Omega_B`` with
         ``c <= c_max`` (see Notes); the filter's information then stays above
         ``(1 - c_max)`` times what it was.
-    mean_recovery, recovery_landmarks, recovery_budget, recovery_relaxation, recovery_tolerance, implementation
+    recovery_budget : int, default 512
+        Queued landmarks relaxed per update by the wavefront recovery (the
+        SEIF's option, with a larger default: a cut keeps the mean but leaves
+        the landmark links weaker than the SEIF's, so a loop closure's
+        correction needs more relaxations to travel through the map).
+    mean_recovery, recovery_landmarks, recovery_relaxation, recovery_tolerance, implementation
         As for the SEIF.
 
     Attributes
@@ -291,7 +296,12 @@ class ConservativeSEIF(SEIF):
     ``O(a^3)`` for ``a`` active landmarks, whatever the size of the map.
     """
 
-    OPTIONS: ClassVar[dict[str, Any]] = {**SEIF.OPTIONS, "max_active_hard": None, "cut_budget": 0.9}
+    OPTIONS: ClassVar[dict[str, Any]] = {
+        **SEIF.OPTIONS,
+        "recovery_budget": 512,
+        "max_active_hard": None,
+        "cut_budget": 0.9,
+    }
     _COUNTERS: ClassVar[tuple[str, ...]] = ("_map_info", "cuts", "deferred_cuts", "discarded_measurements")
 
     def _check_options(self, options: dict[str, Any]) -> None:

@@ -49,9 +49,7 @@ import argparse
 import csv
 import io
 import math
-import shutil
 import sys
-import tempfile
 import time
 from collections.abc import Mapping, Sequence
 from pathlib import Path
@@ -86,7 +84,7 @@ from agents.parallel import Executor, chunks
 from agents.parallel import add_arguments as add_executor_arguments
 from agents.parallel import from_arguments as executor_from_arguments
 from seif_gym import LATEST_ID
-from seif_gym._atomic import atomic_write, atomic_write_bytes, atomic_write_text
+from seif_gym._atomic import atomic_write_bytes, atomic_write_text
 from seif_gym.envs.explore import SeifExploreEnv
 from seif_gym.episodes import Episode, EpisodeRecorder
 from seif_gym.harness import (
@@ -104,13 +102,10 @@ from seif_gym.threads import limit_blas_threads
 from seif_gym.world import LAYOUTS
 
 __all__ = ["COMMAND", "DEFAULT_POLICIES", "PAIRED_METRICS", "PAIRED_COLUMNS", "record_episode", "evaluate",
-           "paired_policies", "paired_policies_table", "save_episode", "main"]  # fmt: skip
+           "paired_policies", "paired_policies_table", "main"]  # fmt: skip
 
 #: The command's name in its journal and manifest.
 COMMAND = "agents.robustness"
-#: The start of the hidden folders where episodes are saved before they are put in place.
-STAGING = ".staging-"
-
 #: Policies of a run without ``--policies``.
 DEFAULT_POLICIES: tuple[str, ...] = BASELINES
 
@@ -284,7 +279,7 @@ def evaluate(
             label, target, layout = tasks[index][3], tasks[index][4], tasks[index][5]
             for episode, _, _, _, _ in result:  # saved before the journal keeps the task
                 if episode_dir is not None:
-                    save_episode(episode, Path(episode_dir) / f"{label}_{layout}_{_seed_of(episode)}.npz")
+                    episode.save(Path(episode_dir) / f"{label}_{layout}_{_seed_of(episode)}.npz")  # whole or not at all
             if journal is not None:
                 kept = [
                     {"seed": _seed_of(episode), "rows": rows, "series": curves}
@@ -317,35 +312,6 @@ def evaluate(
 
 def _seed_of(episode: Episode) -> int:
     return int(episode.seed) if episode.seed is not None else -1
-
-
-def save_episode(episode: Episode, path: str | Path) -> Path:
-    """:meth:`seif_gym.episodes.Episode.save` to ``path`` (a ``.npz``), whole or not at all.
-
-    Returns
-    -------
-    Path
-        ``path``.
-    """
-    target = Path(path)
-    with tempfile.TemporaryDirectory(dir=target.parent, prefix=STAGING) as staging:
-        return _put_in_place(episode.save(Path(staging) / target.name), target)
-
-
-def _put_in_place(written: Path, target: Path) -> Path:
-    """Copy the file ``written`` to ``target`` whole or not at all."""
-
-    def copy(temporary: Path) -> None:
-        shutil.copyfile(written, temporary)
-
-    return atomic_write(target, copy)
-
-
-def clear_staging(folder: str | Path) -> None:
-    """Delete the hidden folders a killed :func:`save_episode` left in ``folder``."""
-    for leftover in Path(folder).rglob(f"{STAGING}*"):
-        if leftover.is_dir():
-            shutil.rmtree(leftover, ignore_errors=True)
 
 
 def paired_policies(
@@ -655,7 +621,6 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 0
     except ResumeError as error:
         parser.exit(2, f"{parser.prog}: error: {error}\n")
-    clear_staging(out)
     limit_blas_threads(1)
     started = time.perf_counter()
     rows, series = evaluate(

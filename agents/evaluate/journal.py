@@ -32,6 +32,7 @@ import hashlib
 import json
 import os
 import shutil
+import socket
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -58,6 +59,8 @@ __all__ = [
 
 #: The journal's folder inside a run folder.
 JOURNAL = ".journal"
+#: The file in the journal that names the process writing it (``{"host": ..., "pid": ...}``).
+OWNER = "owner.json"
 #: The file written last into a finished run folder.
 MANIFEST = "manifest.json"
 #: Version of the journal's and the manifest's format.
@@ -186,21 +189,46 @@ class RunJournal:
             With ``resume``: ``folder`` holds no run of ``command``, or one of another configuration.
         RunFinished
             With ``resume``: the run of ``folder`` finished (its manifest is there).
+
+        Notes
+        -----
+        A run still going on in ``folder`` (its process, on this machine, alive) is refused with a
+        :class:`ResumeError` either way: two runs never write one folder.
         """
         journal = cls(Path(folder), command, config)
+        journal._check_not_running()
         if resume:
             journal._check_resumable()
             remove_temporaries(journal.folder)
             (journal.path / "units").mkdir(parents=True, exist_ok=True)
-            return journal
-        journal.folder.mkdir(parents=True, exist_ok=True)
-        forget_manifest(journal.folder)
-        if journal.path.exists():
-            journal.discarded = len(list((journal.path / "units").glob("*.json")))
-            shutil.rmtree(journal.path)
-        (journal.path / "units").mkdir(parents=True)
-        atomic_write_json(journal.path / "config.json", journal._header(), indent=2, sort_keys=True)
+        else:
+            journal.folder.mkdir(parents=True, exist_ok=True)
+            forget_manifest(journal.folder)
+            if journal.path.exists():
+                journal.discarded = len(list((journal.path / "units").glob("*.json")))
+                shutil.rmtree(journal.path)
+            (journal.path / "units").mkdir(parents=True)
+            atomic_write_json(journal.path / "config.json", journal._header(), indent=2, sort_keys=True)
+        atomic_write_json(journal.path / OWNER, {"host": socket.gethostname(), "pid": os.getpid()})
         return journal
+
+    def _check_not_running(self) -> None:
+        """Refuse a folder whose journal belongs to a process of this machine that is still alive."""
+        try:
+            owner = json.loads((self.path / OWNER).read_text())
+            host, pid = owner["host"], int(owner["pid"])
+        except (OSError, ValueError, KeyError, TypeError):
+            return  # no run there, or one that never got so far
+        if host != socket.gethostname() or pid == os.getpid():
+            return
+        try:
+            os.kill(pid, 0)
+        except ProcessLookupError:
+            return  # killed: its journal is free
+        except PermissionError:
+            pass  # alive, another user's
+        raise ResumeError(f"--out: {self.folder} is being written by a run still going on (process {pid}); "
+                          "wait for it or end it first")  # fmt: skip
 
     def _header(self) -> dict[str, Any]:
         return {"format_version": FORMAT_VERSION, "command": self.command, "seif_gym": seif_gym.__version__,

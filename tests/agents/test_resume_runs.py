@@ -356,3 +356,21 @@ def test_a_finished_run_says_so_and_its_manifest_lists_every_file(tmp_path):
     (tmp_path / "results.csv").unlink()
     with pytest.raises(UnfinishedRunError, match="lacks results.csv, which its manifest.json lists"):
         read_manifest(tmp_path)
+
+
+def test_a_folder_a_live_run_writes_is_refused_and_a_killed_runs_is_taken(tmp_path):
+    RunJournal.start(tmp_path, "agents.evaluate", {"episodes": 3})
+    owner = tmp_path / JOURNAL / "owner.json"
+    other = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])
+    try:
+        owner.write_text(json.dumps({**json.loads(owner.read_text()), "pid": other.pid}))
+        for resume in (False, True):
+            with pytest.raises(
+                ResumeError, match=f"is being written by a run still going on \\(process {other.pid}\\)"
+            ):
+                RunJournal.start(tmp_path, "agents.evaluate", {"episodes": 3}, resume=resume)
+    finally:
+        other.kill()
+        other.wait()
+    journal = RunJournal.start(tmp_path, "agents.evaluate", {"episodes": 3}, resume=True)  # its process is gone
+    assert json.loads(owner.read_text())["pid"] == os.getpid() and journal.units() == []

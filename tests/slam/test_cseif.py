@@ -448,3 +448,25 @@ def test_env_runs_the_cseif():
         if terminated or truncated:
             env.reset()
     assert env.unwrapped.filter.cuts > 0
+
+
+def test_an_episode_of_the_cseif_replays_exactly():
+    """An env episode run with ``filter="cseif"`` replays to the same map (``seif_gym.episodes.replay``)."""
+    import gymnasium as gym
+
+    import seif_gym  # noqa: F401  (registers the environments)
+    from seif_gym.episodes import EpisodeRecorder, replay
+
+    env = EpisodeRecorder(gym.make("SeifExploreLoop-v1", max_episode_steps=120, filter="cseif", max_active=3))
+    env.reset(seed=5)
+    env.action_space.seed(5)
+    done = False
+    while not done:
+        _, _, terminated, truncated, _ = env.step(env.action_space.sample())
+        done = terminated or truncated
+    filt = env.unwrapped.filter
+    assert isinstance(filt, ConservativeSEIF) and filt.cuts > 0
+    result = replay(env.episode, "cseif")
+    assert isinstance(result.filter, ConservativeSEIF) and result.filter.max_active == 3
+    np.testing.assert_array_equal(result.landmark_ids, filt.landmark_ids)
+    np.testing.assert_array_equal(result.landmarks, filt.landmarks)

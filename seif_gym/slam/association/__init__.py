@@ -90,6 +90,30 @@ Algorithm, per scan (Probabilistic Robotics, sections 10.3 and 12.7)
    ``"revisable"`` preset turns both on; the ``"likelihood"`` preset adds
    ``joint_objective="likelihood"``, a 0.9999 gate and ``exclusion_margin``
    (:data:`ASSOCIATOR_PRESETS`).
+9. **Open tentative landmarks** (``open_tentatives``; the ``"tentative"``
+   preset and the defaults). No measurement is thrown away: one that
+   step 6 defers, or that step 7 finds ambiguous (inside a gate, yet not
+   taken, and not far enough to be a new landmark), starts a *tentative*
+   landmark, recorded as the possible double of the landmark it is nearest
+   to in ``d2``. Tentative landmarks are in the filter and are candidates
+   like any other, so the next measurements of the same place pair with the
+   tentative one and the scan's other measurements stay free for the old
+   one. A tentative landmark is resolved by evidence:
+
+   * chosen in one joint hypothesis with its old landmark (two measurements
+     of one scan, so two landmarks), or with a landmark later merged into
+     it, it is confirmed a landmark of its own;
+   * after a loop closure has been accepted since it started, it is merged
+     into its old landmark when ``m_old - m_new`` passes the ``gate`` on
+     their joint marginal *and* the test is decisive: the gate's ellipse,
+     ``sqrt(gate lambda_max)``, is narrower than ``landmark_separation``, so
+     that two landmarks that far apart would fail it;
+   * otherwise it stays tentative for ``tentative_scans`` scans, then it is
+     a landmark of its own.
+
+   A landmark about a metre from one mapped a loop ago, first seen just as
+   the drift lays it onto the old one, is then neither discarded for scans
+   on end nor confused with the old landmark once both are in view.
 
 For SEIF-type filters the covariance of step 2 comes from
 :func:`seif_gym.slam.marginals.breadth_first_joint_covariance` (a block of at
@@ -152,20 +176,43 @@ __all__ = [
 ]
 
 
+#: The settings in which the presets of seif_gym up to 1.0 differ from today's ``Associator()`` defaults: pinned in
+#: each of those presets, so that a preset computes what it always did whatever the defaults become.
+_SETTINGS_OF_1_0: dict[str, Any] = {
+    "gate": 0.999,
+    "loop_merge": False,
+    "tentative_closures": False,
+    "open_tentatives": False,
+    "joint_objective": "pairings",
+    "exclusion_margin": None,
+}
+
 #: Named ``Associator`` settings. ``"individual"``: seif_gym 0.1's individual-compatibility
 #: association, reproduced bit for bit (the env's ``-v0`` ids; ``joint=False`` also turns off the deferral of
-#: lone loop closures); ``"joint"``: the defaults; ``"revisable"``: the defaults with merges (``loop_merge``) and
-#: tentative landmarks for deferred lone closures (``tentative_closures``): association that is taken back;
-#: ``"likelihood"``: ``"revisable"`` with the joint hypotheses ranked by their likelihood ratio against new landmarks
-#: (``joint_objective``), a 0.9999 gate, and new landmarks next to a landmark another measurement of the scan took
-#: (``exclusion_margin``: the swapped assignment 100 times less likely).
+#: lone loop closures); ``"joint"``: joint compatibility with deferred lone loop closures (the defaults up to
+#: 1.0); ``"revisable"``: ``"joint"`` with merges (``loop_merge``) and tentative landmarks for deferred lone
+#: closures (``tentative_closures``): association that is taken back; ``"likelihood"``: ``"revisable"`` with
+#: the joint hypotheses ranked by their likelihood ratio against new landmarks (``joint_objective``), a 0.9999
+#: gate, and new landmarks next to a landmark another measurement of the scan took (``exclusion_margin``: the
+#: swapped assignment 100 times less likely); ``"tentative"``: ``"likelihood"`` with open tentative landmarks
+#: (``open_tentatives``: an ambiguous measurement starts a tentative landmark instead of being discarded, and a
+#: tentative landmark is merged only when the correspondence test can tell landmarks apart).
 ASSOCIATOR_PRESETS: dict[str, dict[str, Any]] = {
-    "individual": {"joint": False, "landmark_density": 0.0, "blanket_size": 0, "detection": 0.0},
-    "joint": {},
-    "revisable": {"loop_merge": True, "tentative_closures": True},
+    "individual": {**_SETTINGS_OF_1_0, "joint": False, "landmark_density": 0.0, "blanket_size": 0, "detection": 0.0},
+    "joint": {**_SETTINGS_OF_1_0},
+    "revisable": {**_SETTINGS_OF_1_0, "loop_merge": True, "tentative_closures": True},
     "likelihood": {
+        **_SETTINGS_OF_1_0,
         "loop_merge": True,
         "tentative_closures": True,
+        "joint_objective": "likelihood",
+        "gate": 0.9999,
+        "exclusion_margin": 2.0 * math.log(100.0),
+    },
+    "tentative": {
+        "loop_merge": True,
+        "tentative_closures": True,
+        "open_tentatives": True,
         "joint_objective": "likelihood",
         "gate": 0.9999,
         "exclusion_margin": 2.0 * math.log(100.0),
@@ -179,10 +226,11 @@ def make_associator(preset: str = "joint", **overrides: Any) -> Associator:
     Parameters
     ----------
     preset : str
-        A key of :data:`ASSOCIATOR_PRESETS`: ``"joint"`` (the defaults: joint compatibility, the
-        pairing-vs-new-landmark test, deferred lone loop closures), ``"individual"`` (seif_gym
-        0.1's associator, bit for bit), ``"revisable"`` (merges and tentative closures) or
-        ``"likelihood"`` (revisable, with hypotheses ranked by likelihood).
+        A key of :data:`ASSOCIATOR_PRESETS`: ``"joint"`` (joint compatibility, the
+        pairing-vs-new-landmark test, deferred lone loop closures: the defaults up to 1.0),
+        ``"individual"`` (seif_gym 0.1's associator, bit for bit), ``"revisable"`` (merges and
+        tentative closures), ``"likelihood"`` (revisable, with hypotheses ranked by likelihood) or
+        ``"tentative"`` (likelihood, with open tentative landmarks).
     **overrides
         Further :class:`Associator` keyword arguments; they take precedence over the preset's.
 

@@ -331,6 +331,7 @@ class Associator:
         self.tentative_scans = int(tentative_scans)
         #: open_tentatives: tentative landmark id -> the landmark ids chosen in a scan with it (never its double)
         self._coseen: dict[int, set[int]] = {}
+        self._near: set[int] = set()  # open_tentatives: the ids of the last scan's candidates and decisions
         if exclusion_margin is not None:
             if isinstance(exclusion_margin, bool) or not isinstance(exclusion_margin, (int, float)):
                 raise TypeError(f"exclusion_margin must be a number or None, got {type(exclusion_margin).__name__}")
@@ -550,10 +551,11 @@ class Associator:
         ids[new] = self.next_id + np.arange(count_new)
         for k, old_id in tentative.items():
             self.tentatives[int(ids[k])] = (old_id, self.stats.scans + 1)
-        if self.open_tentatives and self.tentatives:
+        if self.open_tentatives:
             seen = set(ids[ids >= 0].tolist())
             for i in seen.intersection(self.tentatives):
                 self._coseen.setdefault(i, set()).update(seen - {i})
+            self._near = seen.union(filt.landmark_ids[np.unique(pair_landmark)].tolist()) if len(pair_meas) else seen
         self.created = {int(i): int(k) for k, i in zip(np.flatnonzero(new).tolist(), ids[new].tolist())}
         self.next_id += count_new
         stats = self.stats
@@ -667,8 +669,15 @@ class Associator:
         merges = []
         landmarks = None  # the map's means, read once per call (and again after a merge reorders them)
         life = self.tentative_scans if self.open_tentatives else self.closure_window
+        near = self._near if self.open_tentatives else None
         for new_id, (old_id, started) in list(self.tentatives.items()):
             if new_id not in self.tentatives:  # confirmed by a merge of this call
+                continue
+            if near is not None and new_id not in near and old_id not in near:
+                # open_tentatives: only the tentative landmarks by the robot are tested (a bounded set)
+                if now - started > life:
+                    del self.tentatives[new_id]
+                    self._coseen.pop(new_id, None)
                 continue
             try:
                 i, j = filt.landmark_index(old_id), filt.landmark_index(new_id)

@@ -1536,3 +1536,126 @@ def rollout_step(t, start, horizon, robot_info, robot_links, landmark_info, neig
             pose_covariances[e] = pose_cov
             landmark_std[e] = conditional_std(landmark_info[e], n)
     return -1, 0
+
+
+# -- the ConservativeSEIF's certified cut (seif_gym.slam.cseif) ---------------------------------------------------
+@njit(cache=True)
+def _sqrtm_2x2(a):
+    """Symmetric square root of a 2 x 2 positive semidefinite matrix: ``(A + sqrt(det A) I) / sqrt(tr A + 2 sqrt(det A))``."""
+    det = max(a[0, 0] * a[1, 1] - 0.5 * (a[0, 1] + a[1, 0]) * 0.5 * (a[0, 1] + a[1, 0]), 0.0)
+    s = np.sqrt(det)
+    t = np.sqrt(max(a[0, 0] + a[1, 1] + 2.0 * s, 0.0))
+    out = np.zeros((2, 2))
+    if t == 0.0:
+        return out
+    out[0, 0] = (a[0, 0] + s) / t
+    out[1, 1] = (a[1, 1] + s) / t
+    out[0, 1] = out[1, 0] = 0.5 * (a[0, 1] + a[1, 0]) / t
+    return out
+
+
+@njit(cache=True)
+def _inverse_2x2(a):
+    det = a[0, 0] * a[1, 1] - a[0, 1] * a[1, 0]
+    out = np.empty((2, 2))
+    out[0, 0], out[1, 1] = a[1, 1] / det, a[0, 0] / det
+    out[0, 1], out[1, 0] = -a[0, 1] / det, -a[1, 0] / det
+    return out
+
+
+@njit(cache=True)
+def cut_cost(omega, local, position):
+    """The certified cost ``c`` and the 5 x 2 factor ``u`` on (robot, landmark) of :func:`~seif_gym.slam.cseif.cut_direction`.
+
+    Returns ``(c, u, weights)`` with ``weights = [Omega_B]_bb^-1 u``; ``c = inf`` when ``[Omega_B]_bb`` is not
+    positive definite, ``c = 0`` (and ``u = 0``) when the link is already zero.
+    """
+    o = 3 + 2 * position
+    rows = np.array([0, 1, 2, o, o + 1])
+    u = np.zeros((5, 2))
+    weights = np.zeros((5, 2))
+    nonzero = False
+    for a in range(3):
+        for b in range(2):
+            if omega[a, o + b] != 0.0:
+                nonzero = True
+    if not nonzero:
+        return 0.0, u, weights
+    block = np.empty((5, 5))
+    for a in range(5):
+        for b in range(5):
+            block[a, b] = 0.5 * (local[rows[a], rows[b]] + local[rows[b], rows[a]])
+    # Cholesky by hand (numba's raises a generic error): refuse a block that is not positive definite
+    lower = np.zeros((5, 5))
+    for j in range(5):
+        d = block[j, j]
+        for k in range(j):
+            d -= lower[j, k] * lower[j, k]
+        if not d > 0.0:
+            return np.inf, u, weights
+        lower[j, j] = np.sqrt(d)
+        for i in range(j + 1, 5):
+            v = block[i, j]
+            for k in range(j):
+                v -= lower[i, k] * lower[j, k]
+            lower[i, j] = v / lower[j, j]
+    inverse_lower = np.linalg.inv(lower)
+    cov = np.ascontiguousarray(inverse_lower.T) @ inverse_lower
+    link = np.empty((3, 2))
+    for a in range(3):
+        for b in range(2):
+            link[a, b] = omega[a, o + b]
+    m = np.ascontiguousarray(link.T) @ np.ascontiguousarray(cov[:3, :3]) @ link
+    eps = 1e-12 * (m[0, 0] + m[1, 1])
+    m[0, 0] += eps
+    m[1, 1] += eps
+    root_n = _sqrtm_2x2(np.ascontiguousarray(cov[3:, 3:]))
+    if root_n[0, 0] * root_n[1, 1] - root_n[0, 1] * root_n[1, 0] <= 0.0:
+        return np.inf, u, weights
+    inverse_root_n = _inverse_2x2(root_n)
+    d = inverse_root_n @ _sqrtm_2x2(root_n @ m @ root_n) @ inverse_root_n
+    root_d = _sqrtm_2x2(0.5 * (d + d.T))
+    if not root_d[0, 0] * root_d[1, 1] - root_d[0, 1] * root_d[1, 0] > 0.0:
+        return np.inf, u, weights
+    u[:3] = link @ _inverse_2x2(root_d)
+    u[3:] = root_d
+    weights = cov @ u
+    g = np.ascontiguousarray(u.T) @ weights
+    half_trace = 0.5 * (g[0, 0] + g[1, 1])
+    off = 0.5 * (g[0, 1] + g[1, 0])
+    cost = half_trace + np.sqrt(max(0.25 * (g[0, 0] - g[1, 1]) ** 2 + off * off, 0.0))
+    if not np.isfinite(cost):
+        return np.inf, u, weights
+    return cost, u, weights
+
+
+@njit(cache=True)
+def cheapest_cut(omega, local, candidates):
+    """The cheapest certified cut among the block positions ``candidates``: ``(position, factor, cost)``.
+
+    ``factor`` is ``U`` of :func:`~seif_gym.slam.cseif.cut_direction` (``[Omega_B]_{:b} weights``, ``u`` on
+    ``b``); ties keep the first candidate.
+    """
+    size = omega.shape[0]
+    best, best_cost = -1, np.inf
+    best_u = np.zeros((5, 2))
+    best_weights = np.zeros((5, 2))
+    for p in candidates:
+        cost, u, weights = cut_cost(omega, local, p)
+        if best < 0 or cost < best_cost:
+            best, best_cost, best_u, best_weights = p, cost, u, weights
+    factor = np.zeros((size, 2))
+    if best < 0 or not np.isfinite(best_cost):
+        return best, factor, best_cost
+    o = 3 + 2 * best
+    rows = np.array([0, 1, 2, o, o + 1])
+    for r in range(size):
+        for c in range(2):
+            v = 0.0
+            for a in range(5):
+                v += local[r, rows[a]] * best_weights[a, c]
+            factor[r, c] = v
+    for a in range(5):
+        for c in range(2):
+            factor[rows[a], c] = best_u[a, c]
+    return best, factor, best_cost

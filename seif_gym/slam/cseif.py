@@ -408,13 +408,7 @@ class ConservativeSEIF(SEIF):
                 break
             omega, xi, mu = _kernels.gather(*store.kernel_arrays(), self._active)
             local = local_information(omega, self._map_info)
-            best: tuple[int, FloatArray, float] | None = None
-            for position in candidates.tolist():
-                factor, cost = cut_direction(omega, local, position)
-                if best is None or cost < best[2]:
-                    best = (position, factor, cost)
-            assert best is not None
-            position, factor, cost = best
+            position, factor, cost = self._cheapest_cut(omega, local, candidates)
             if not cost <= self.cut_budget:
                 deferred = True
                 break
@@ -427,6 +421,25 @@ class ConservativeSEIF(SEIF):
             self._map_info = map_info
             self.cuts += 1
         self.deferred_cuts += int(deferred)
+
+    def _cheapest_cut(
+        self, omega: FloatArray, local: FloatArray, candidates: IntArray
+    ) -> tuple[int, FloatArray, float]:
+        """The cheapest cut among the block positions ``candidates``: its position, ``U`` and cost.
+
+        The compiled kernel (:func:`~seif_gym.slam._kernels.cheapest_cut`), or :func:`cut_direction` for
+        each candidate with ``implementation="reference"``; the first of equal costs wins.
+        """
+        if self.options["implementation"] == "compiled":
+            position, factor, cost = _kernels.cheapest_cut(omega, local, np.asarray(candidates, dtype=np.int64))
+            return int(position), factor, float(cost)
+        best: tuple[int, FloatArray, float] | None = None
+        for position in candidates.tolist():
+            factor, cost = cut_direction(omega, local, position)
+            if best is None or cost < best[2]:
+                best = (position, factor, cost)
+        assert best is not None
+        return best
 
     def _state_nbytes(self) -> int:
         return super()._state_nbytes() + self._map_info.nbytes

@@ -6,6 +6,7 @@ Usage::
     python benchmarks/fidelity.py --seeds 5 --ks 8 --json fidelity.json --markdown fidelity.md
     python benchmarks/fidelity.py --families A B C             # issue #57's families, held-out seeds 200-205
     python benchmarks/fidelity.py --families A B C --family-seeds 0 1 2   # the seeds the CSEIF was designed on
+    python benchmarks/fidelity.py --families A B C --anees --family-seeds $(seq 300 329)   # Monte-Carlo ANEES
 
 Runs: the family :data:`seif_gym.slam.scenarios.FIDELITY_SCENARIOS` (a circle,
 a rounded rectangle and a figure eight, each with a dense landmark field and an
@@ -143,6 +144,37 @@ def run_family_job(job: tuple[str, int]) -> tuple[str, int, dict[str, dict[str, 
     return family, seed, out
 
 
+def family_nees(job: tuple[str, int]) -> tuple[str, int, dict[str, list[float]]]:
+    """Pose NEES of every filter of :data:`FAMILY_FILTERS` at the quarters of one run of a family (one process)."""
+    family, seed = job
+    motion, sensor, run = family_run(family, seed)
+    checks = {run.steps * q // 4 for q in (1, 2, 3, 4)}
+    out: dict[str, list[float]] = {}
+    for label, cls in FAMILY_FILTERS:
+        filt = cls(motion, sensor, run.initial_pose)
+        values = []
+        for t in range(run.steps):
+            filt.predict_trusted(run.controls[t], run.dt)
+            filt.update_trusted(run.ranges[t], run.bearings[t], run.ids[t])
+            if t + 1 in checks:
+                values.append(pose_nees(run.true_poses[t + 1], filt.pose, filt.pose_covariance))
+        out[label] = values
+    return family, seed, out
+
+
+def anees_table(results: list[tuple[str, int, dict]]) -> str:
+    """Monte-Carlo pose ANEES per family at the quarters of the run, with the 95% chi-square band of the average."""
+    lines = ["| family | runs | 95% band | " + " | ".join(label for label, _ in FAMILY_FILTERS) + " |",
+             "|---" * (3 + len(FAMILY_FILTERS)) + "|"]  # fmt: skip
+    for family in sorted({r[0] for r in results}):
+        runs = [r for r in results if r[0] == family]
+        low, high = chi2.ppf([0.025, 0.975], 3 * len(runs)) / len(runs)
+        cells = [" / ".join(f"{v:.2f}" for v in np.mean([r[2][label] for r in runs], axis=0))
+                 for label, _ in FAMILY_FILTERS]  # fmt: skip
+        lines.append(f"| {family} | {len(runs)} | ({low:.2f}, {high:.2f}) | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
 def family_table(results: list[tuple[str, int, dict]]) -> str:
     """Per family and over all runs: mean map RMSE of each filter, its ratio to the EKF's, the worst run's ratio."""
     labels = [label for label, _ in FAMILY_FILTERS]
@@ -275,6 +307,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--family-seeds", type=int, nargs="+", default=list(FAMILY_HELD_OUT_SEEDS),
                         help="seeds of each family (default: 200-205, never used to design the ConservativeSEIF; "
                         "0-2 designed it)")  # fmt: skip
+    parser.add_argument("--anees", action="store_true",
+                        help="with --families: Monte-Carlo pose ANEES at the quarters of each run instead of map RMSE")  # fmt: skip
     args = parser.parse_args(argv)
     if args.families:
         return main_families(args)
@@ -308,11 +342,11 @@ def main_families(args: argparse.Namespace) -> int:
     jobs = [(family, seed) for family in args.families for seed in args.family_seeds]
     started = time.perf_counter()
     with ProcessPoolExecutor(args.jobs) as pool:
-        results = list(pool.map(run_family_job, jobs))
+        results = list(pool.map(family_nees if args.anees else run_family_job, jobs))
     elapsed = time.perf_counter() - started
     design = sorted(set(args.family_seeds) & set(FAMILY_DESIGN_SEEDS))
     kind = "design seeds" if design == sorted(args.family_seeds) else ("held-out seeds" if not design else "mixed")
-    table = family_table(results)
+    table = anees_table(results) if args.anees else family_table(results)
     print(f"# Families {' '.join(args.families)}, seeds {' '.join(map(str, args.family_seeds))} ({kind}); "
           f"every filter's defaults ({elapsed:.0f} s, {args.jobs} jobs, Python {platform.python_version()})")  # fmt: skip
     print(table)

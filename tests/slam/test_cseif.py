@@ -222,6 +222,29 @@ def test_without_a_bound_the_cseif_is_the_eif(ring_loop_run):
     np.testing.assert_allclose(cseif.mean, eif.mean, atol=1e-8)
 
 
+@pytest.mark.parametrize("which", ["passive", "active"])
+def test_a_merge_keeps_a_valid_split_and_filtering_goes_on(ring_loop_run, which):
+    """Merging two landmarks (data association's revision) is the SEIF's; the split is reset validly."""
+    motion, sensor, run = ring_loop_run
+    filt = feed(ConservativeSEIF(motion, sensor, run.initial_pose, max_active=4), run, 120)
+    ids = filt.landmark_ids
+    active = set(filt.active_landmarks.tolist())
+    keep = next(int(i) for i in ids if (int(i) in active) == (which == "active"))
+    remove = next(int(i) for i in ids if int(i) not in active and int(i) != keep)
+    filt.merge_landmarks(keep, remove)
+    cuts = filt.cuts
+    for t in range(120, 200):
+        filt.predict(run.controls[t], run.dt)
+        seen = run.ids[t] != remove
+        filt.update(run.ranges[t][seen], run.bearings[t][seen], run.ids[t][seen])
+        omega_a, omega_b = split_of(filt)
+        scale = np.abs(filt.information_matrix.toarray()).max()
+        assert np.linalg.eigvalsh(omega_a)[0] >= -1e-9 * scale and not np.any(omega_a[:3])
+        assert np.linalg.eigvalsh(omega_b)[0] >= -1e-9 * scale
+    assert filt.cuts > cuts
+    assert np.linalg.eigvalsh(filt.information_matrix.toarray())[0] > 0.0
+
+
 # ---------------------------------------------------------------------------
 # constant time
 # ---------------------------------------------------------------------------

@@ -79,11 +79,17 @@ def test_audit_counts_each_kind_of_decision():
 
 
 def test_decisions_on_a_hand_made_scan():
-    """Known landmark, new landmark, ambiguous measurement and mutual exclusion in one scan."""
+    """Known landmark, new landmark, ambiguous measurement and mutual exclusion in one scan.
+
+    The ``"joint"`` preset (the defaults up to 1.0) discards ambiguous measurements; the defaults (``"tentative"``)
+    start tentative landmarks for them (``tests/slam/test_association_family_a.py``).
+    """
+    from seif_gym.slam.association import make_associator
+
     motion = VelocityMotionModel()
     sensor = RangeBearingSensor(sigma_range=0.1, sigma_bearing=math.radians(2.0), max_range=10.0)
     filt = EKF(motion, sensor, np.zeros(3))
-    associator = Associator(first_id=100)
+    associator = make_associator("joint", first_id=100)
     # map two landmarks: at (4, 0) and (0, 4)
     ids = associator.update(filt, np.array([4.0, 4.0]), np.array([0.0, math.pi / 2]))
     np.testing.assert_array_equal(ids, [100, 101])
@@ -409,7 +415,7 @@ def test_individual_preset_reproduces_the_original_associator(filter_class):
 def test_make_associator_presets_and_overrides():
     from seif_gym.slam.association import ASSOCIATOR_PRESETS, make_associator
 
-    assert set(ASSOCIATOR_PRESETS) == {"individual", "joint", "revisable", "likelihood"}
+    assert set(ASSOCIATOR_PRESETS) == {"individual", "joint", "revisable", "likelihood", "tentative"}
     revisable = make_associator("revisable")
     assert revisable.joint and revisable.loop_merge and revisable.tentative_closures
     assert revisable.joint_objective == "pairings" and revisable.exclusion_margin is None
@@ -502,12 +508,14 @@ def test_exclusion_margin_lets_a_landmark_start_next_to_one_measured_in_the_same
     and the new-landmark threshold, 23). The other measurement takes the mapped tree with d2 0, so by mutual exclusion
     the first is a new landmark; without ``exclusion_margin`` it is discarded as ambiguous.
     """
+    from seif_gym.slam.association import make_associator
+
     sensor = RangeBearingSensor(max_range=5.0, fov=math.pi)
     ranges, bearings = np.array([3.0, math.hypot(3.0, 0.6)]), np.array([0.0, math.atan2(0.6, 3.0)])
     decisions = {}
     for margin in (None, 9.2, 20.0):
         filt = EKF(VelocityMotionModel(), sensor, np.zeros(3))
-        associator = Associator(exclusion_margin=margin)
+        associator = make_associator("joint", exclusion_margin=margin)  # the 0.999 gate of 1.0's defaults
         assert associator.update(filt, ranges[:1], bearings[:1]).tolist() == [0]
         filt.predict(np.zeros(2), 0.25)
         d2 = associator.distances(filt, ranges, bearings)[2]

@@ -103,8 +103,9 @@ class Associator:
     Parameters
     ----------
     gate : float
-        Probability of the chi-square gate (0.999: ``d2 <= 13.8`` with 2 dof;
-        a 0.99 gate would discard 1% of the correct pairs by design).
+        Probability of the chi-square gate (0.9999: ``d2 <= 18.4`` with 2 dof;
+        a 0.99 gate would discard 1% of the correct pairs by design; 0.999,
+        ``d2 <= 13.8``, up to 1.0).
     new_landmark : float
         Chi-square probability above which an unassigned measurement starts a
         new landmark (0.99999: ``d2 > 23.0`` with 2 dof). Must be ``>= gate``;
@@ -162,8 +163,8 @@ class Associator:
     loop_merge : bool
         Revise the association (step 8): fold landmarks started lately into
         old ones when a rigid copy of the old map shows (through the filter's
-        ``merge_landmarks``); off by default (the envs' ``-v0``/``-v1``
-        association does not merge).
+        ``merge_landmarks``); on by default (off up to 1.0, and in the
+        ``"individual"`` and ``"joint"`` presets).
     merge_every : int
         Scans between two searches for a copy.
     merge_recent : int
@@ -182,27 +183,28 @@ class Associator:
         Degrees and metres: the largest drift (rotation, and motion of the
         recent landmarks' centroid) a copy may show.
     tentative_closures : bool
-        A deferred lone closure (step 6) starts a tentative landmark instead
+        (Default on; off up to 1.0.) A deferred lone closure (step 6) starts a tentative landmark instead
         of being discarded; once its old landmark is associated again (the
         closure accepted) and the two pass the correspondence test on the
         joint marginal of ``m_old - m_new`` (the ``gate``), it is merged into
         the old one; after ``closure_window`` scans it stays a landmark of its
         own.
     open_tentatives : bool
-        With ``tentative_closures``: tentative landmarks are candidates like
-        any other (the map is not read as without them), and each deferred
-        lone closure starts its own tentative landmark (none is handed to
-        another's). A tentative landmark chosen in the same joint hypothesis
-        as its old landmark (by another measurement of the scan) is a
-        landmark of its own: it is confirmed at once and never merged. One is
+        (Default on.) Step 9 (needs ``tentative_closures``): tentative landmarks are
+        candidates like any other (the map is not read as without them); each
+        deferred lone closure, and each ambiguous measurement (inside a gate,
+        not taken, not far enough for a new landmark), starts its own
+        tentative landmark instead of being discarded. A tentative landmark
+        chosen in one joint hypothesis with its old landmark (two
+        measurements of one scan) is confirmed a landmark of its own. One is
         merged into its old landmark once a closure has been accepted since it
         started, the two pass the correspondence test on the marginal of
         ``m_old - m_new`` (the ``gate``) *and* the test can tell landmarks
         ``landmark_separation`` apart (the gate's ellipse,
-        ``sqrt(gate lambda_max)``, is narrower than the separation); two
-        landmarks ever chosen in one scan are never merged. A tentative
-        landmark neither merged nor confirmed after ``tentative_scans`` scans
-        stays a landmark of its own.
+        ``sqrt(gate lambda_max)``, is narrower than the separation). Only the
+        tentative landmarks among the last scan's candidates are tested (a
+        bounded set); one neither merged nor confirmed after
+        ``tentative_scans`` scans stays a landmark of its own.
     tentative_scans : int
         With ``open_tentatives``: scans a tentative landmark waits for its
         resolution.
@@ -211,18 +213,20 @@ class Associator:
         another measurement of the scan whose ``d2`` is smaller by at least
         this much no longer stops a measurement from starting a new landmark
         (the swapped assignment is ``exp(margin / 2)`` times less likely).
-        ``None`` (the default): every gated landmark stops it.
+        Default ``2 ln 100`` (100 times); ``None`` (the default up to 1.0):
+        every gated landmark stops it.
     joint_objective : {"pairings", "likelihood"}
         What the branch and bound maximises among the jointly compatible
         hypotheses (step 4): the number of pairings (Neira & Tardos; the
-        default), or the likelihood ratio of the hypothesis against "each of
+        default up to 1.0), or the likelihood ratio (the default) of the hypothesis against "each of
         its measurements is an unmapped landmark", with the density of step 5
         (:func:`jcbb`'s ``gains``), so that one good pairing can beat two poor
         ones where new landmarks are plausible.
 
     Notes
     -----
-    See the module docstring for the algorithm. :meth:`associate` is the
+    The defaults are the ``"tentative"`` preset; the defaults of seif_gym up to 1.0 are the ``"joint"``
+    preset (:data:`~seif_gym.slam.association.ASSOCIATOR_PRESETS`). See the module docstring for the algorithm. :meth:`associate` is the
     decision alone; :meth:`update` also applies it to the filter. Ids are the
     associator's own: with a simulator, map them to the true landmarks by the
     true id of the measurement that created each (``created``).
@@ -230,7 +234,7 @@ class Associator:
 
     def __init__(
         self,
-        gate: float = 0.999,
+        gate: float = 0.9999,
         new_landmark: float = 0.99999,
         candidate_radius: float = 3.0,
         signature_sigma: float | None = None,
@@ -248,7 +252,7 @@ class Associator:
         closure_age: int = 60,
         closure_pairings: int = 2,
         closure_window: int = 40,
-        loop_merge: bool = False,
+        loop_merge: bool = True,
         merge_every: int = 10,
         merge_recent: int = 40,
         merge_radius: float = 15.0,
@@ -257,11 +261,11 @@ class Associator:
         merge_margin: int = 2,
         merge_rotation: float = 10.0,
         merge_shift: float = 3.0,
-        tentative_closures: bool = False,
-        open_tentatives: bool = False,
+        tentative_closures: bool = True,
+        open_tentatives: bool = True,
         tentative_scans: int = 400,
-        exclusion_margin: float | None = None,
-        joint_objective: str = "pairings",
+        exclusion_margin: float | None = 2.0 * math.log(100.0),
+        joint_objective: str = "likelihood",
     ) -> None:
         for name, value in (("gate", gate), ("new_landmark", new_landmark)):
             if not isinstance(value, (int, float)) or not 0.0 < float(value) < 1.0:
@@ -332,6 +336,9 @@ class Associator:
         #: open_tentatives: tentative landmark id -> the landmark ids chosen in a scan with it (never its double)
         self._coseen: dict[int, set[int]] = {}
         self._near: set[int] = set()  # open_tentatives: the ids of the last scan's candidates and decisions
+        self._local: set[int] = set()  # open_tentatives: tentative landmarks whose old landmark was in view
+        self._misses: dict[int, int] = {}  # open_tentatives: tentative landmark -> scans that passed it over
+        self._miss_limit = math.ceil(math.log(0.01) / math.log1p(-self.detection)) if self.detection > 0.0 else 0
         if exclusion_margin is not None:
             if isinstance(exclusion_margin, bool) or not isinstance(exclusion_margin, (int, float)):
                 raise TypeError(f"exclusion_margin must be a number or None, got {type(exclusion_margin).__name__}")
@@ -551,11 +558,14 @@ class Associator:
         ids[new] = self.next_id + np.arange(count_new)
         for k, old_id in tentative.items():
             self.tentatives[int(ids[k])] = (old_id, self.stats.scans + 1)
+            if self.open_tentatives and self.stats.scans - self.last_seen.get(old_id, -(10**9)) <= self.closure_age:
+                self._local.add(int(ids[k]))  # the double of a landmark in view: no loop closure to wait for
         if self.open_tentatives:
             seen = set(ids[ids >= 0].tolist())
             for i in seen.intersection(self.tentatives):
                 self._coseen.setdefault(i, set()).update(seen - {i})
             self._near = seen.union(filt.landmark_ids[np.unique(pair_landmark)].tolist()) if len(pair_meas) else seen
+            self._count_misses(filt, seen)
         self.created = {int(i): int(k) for k, i in zip(np.flatnonzero(new).tolist(), ids[new].tolist())}
         self.next_id += count_new
         stats = self.stats
@@ -594,6 +604,33 @@ class Associator:
         excluded = hit & (taken_meas[pos] != pair_meas) & (d2 - taken_d2[pos] >= self.exclusion_margin)
         return ~excluded
 
+    def _count_misses(self, filt: SlamFilter, seen: set[int]) -> None:
+        """``open_tentatives``: count the scans that passed over a tentative landmark for its old landmark.
+
+        A miss is a scan that took the old landmark, not the tentative one, while the tentative one lay well
+        inside the footprint (1 m, or 20% of the range, inside its edges): a landmark there would have been
+        measured with probability ``detection``. After ``ln 0.01 / ln(1 - detection)`` misses in a row
+        (7 at 0.5) the tentative landmark was a stray measurement of its old one: it is merged into it.
+        """
+        if self.detection <= 0.0:
+            return
+        sensor = filt.sensor
+        reach = float(sensor.max_range) - max(1.0, 0.2 * float(sensor.max_range))
+        half_fov = 0.5 * float(getattr(sensor, "fov", 2.0 * math.pi))
+        pose = np.asarray(filt.pose, dtype=np.float64)
+        for new_id in self._near.intersection(self.tentatives):
+            if new_id in seen:
+                self._misses.pop(new_id, None)
+                continue
+            if self.tentatives[new_id][0] not in seen:
+                continue
+            dx, dy = filt.landmarks[filt.landmark_index(new_id)] - pose[:2]
+            r = math.hypot(dx, dy)
+            off = abs((math.atan2(dy, dx) - pose[2] + math.pi) % (2.0 * math.pi) - math.pi)
+            inside = r <= reach and (half_fov >= math.pi or (off < half_fov and r * math.sin(half_fov - off) >= 1.0))
+            if inside:
+                self._misses[new_id] = self._misses.get(new_id, 0) + 1
+
     def _confirm_tentatives(self, hypothesis: IntArray) -> None:
         """``open_tentatives``: a tentative landmark chosen with its own old landmark is a landmark of its own.
 
@@ -606,6 +643,8 @@ class Associator:
             if self.tentatives[i][0] in chosen:
                 del self.tentatives[i]
                 self._coseen.pop(i, None)
+                self._local.discard(i)
+                self._misses.pop(i, None)
 
     def _merge(self, filt: SlamFilter, keep: int, remove: int) -> None:
         """``filt.merge_landmarks(keep, remove)`` and the associator's own records of ``remove`` folded into ``keep``."""
@@ -613,6 +652,8 @@ class Associator:
         self.last_seen[keep] = max(self.last_seen.get(keep, 0), self.last_seen.pop(remove, 0))
         self.started.pop(remove, None)
         self.tentatives.pop(remove, None)
+        self._local.discard(remove)
+        self._misses.pop(remove, None)
         self.signatures.merge(keep, remove)
         if self._coseen:
             self._coseen.pop(remove, None)
@@ -678,15 +719,26 @@ class Associator:
                 if now - started > life:
                     del self.tentatives[new_id]
                     self._coseen.pop(new_id, None)
+                    self._local.discard(new_id)
+                    self._misses.pop(new_id, None)
+                self._misses.pop(new_id, None)
                 continue
             try:
                 i, j = filt.landmark_index(old_id), filt.landmark_index(new_id)
             except KeyError:  # merged away meanwhile (a copy of the old map)
                 del self.tentatives[new_id]
                 self._coseen.pop(new_id, None)
+                self._local.discard(new_id)
+                self._misses.pop(new_id, None)
                 continue
             distinct = self.open_tentatives and old_id in self._coseen.get(new_id, ())
-            if not distinct and max(self.last_seen.get(old_id, 0), self._closure_accepted) >= started:
+            if not distinct and self._miss_limit and self._misses.get(new_id, 0) >= self._miss_limit:
+                self._merge(filt, old_id, new_id)  # passed over for its old landmark, again and again
+                merges.append((old_id, new_id))
+                landmarks = None
+                continue
+            ready = new_id in self._local or max(self.last_seen.get(old_id, 0), self._closure_accepted) >= started
+            if not distinct and ready:
                 # a closure accepted since: the correspondence test on m_old - m_new
                 joint = self._joint_covariance(filt, np.array([i, j], dtype=np.int64))
                 difference_cov = joint[3:5, 3:5] + joint[5:7, 5:7] - joint[3:5, 5:7] - joint[5:7, 3:5]
@@ -704,6 +756,8 @@ class Associator:
             if distinct or now - started > life:
                 del self.tentatives[new_id]
                 self._coseen.pop(new_id, None)
+                self._local.discard(new_id)
+                self._misses.pop(new_id, None)
         self.stats.merged += len(merges)
         return merges
 

@@ -19,8 +19,9 @@ the link is exactly zero and the mean is kept.
 **The certificate.** Subtracting ``S`` keeps ``Omega~`` positive definite only
 if ``S`` is below the information that the *whole* map holds in its directions
 (``lambda_max(S Sigma) < 1`` with the exact covariance), which no constant-time
-computation on a bounded block can bound: the Markov-blanket covariance
-underestimates it, by an order of magnitude on loops. The filter therefore
+computation on a bounded block can bound: the Markov-blanket covariance can
+underestimate it by any factor (``docs/filters/fidelity.md`` measures it on a
+loop). The filter therefore
 keeps a split of its information matrix that certifies every cut locally::
 
     Omega = Omega_A + Omega_B,   Omega_A >= 0 with zero robot rows,
@@ -235,8 +236,8 @@ class ConservativeSEIF(SEIF):
         ``max(H, |scan|)``.
     cut_budget : float, default 0.9
         ``c_max`` in ``(0, 1)``: a cut must satisfy ``S <= c Omega_B`` with
-        ``c <= c_max`` (see Notes); the filter's information then stays above
-        ``(1 - c_max)`` times what it was.
+        ``c <= c_max`` (see Notes), so that each cut keeps
+        ``Omega~ >= (1 - c_max) Omega``.
     recovery_budget : int, default 512
         Queued landmarks relaxed per update by the wavefront recovery (the
         SEIF's option, with a larger default: a cut keeps the mean but leaves

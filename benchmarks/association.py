@@ -210,7 +210,7 @@ def main(argv: list[str] | None = None) -> int:
         held_out = not set(seeds) & set(DESIGN_SEEDS)
         print(
             f"# family-a: design seeds {DESIGN_SEEDS[0]}..{DESIGN_SEEDS[-1]} (the tentative preset was tuned on "
-            f"them); these seeds are {'HELD OUT (never run while designing)' if held_out else 'DESIGN seeds'}"
+            f"them); these seeds are {'HELD OUT (no setting was chosen on them)' if held_out else 'DESIGN seeds'}"
         )
     header = f"{'scenario':18s} {'filter':6s} {'correct %':>9s} {'dup %':>6s} {'dup/lm':>7s} {'disc %':>6s} " \
              f"{'pose err m':>10s} {'ms/scan':>7s} {'max ms':>7s} {'started':>7s} {'merged':>6s} {'wrong':>5s}"  # fmt: skip

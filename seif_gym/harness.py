@@ -44,6 +44,9 @@ Filters (``--filters``, comma separated; default :func:`default_filters`):
                    ``max_active=N``; ``eseif-exact``, ``eseif-kN-exact``: exact
                    recovery); in the default set only when ``"eseif"`` is in
                    :data:`seif_gym.slam.FILTERS`
+``cseif``          ConservativeSEIF with ``max_active=8`` and the env version's recovery
+                   (``cseif-kN``, ``cseif-exact``, ``cseif-kN-exact`` as for the ESEIF);
+                   not in the default set
 ``eif``, ``ekf``   the exact filters
 =================  ==============================================================
 
@@ -279,8 +282,8 @@ def parse_filter(spec: str | FilterSpec) -> FilterSpec:
         return FilterSpec(label, label, {})
     if label == "seif-full":
         return FilterSpec(label, "seif", {"max_active": None, "mean_recovery": "exact"})
-    match = re.fullmatch(r"(seif|eseif)(?:-k(\d+))?(-exact)?", label)
-    if match and (match.group(2) or match.group(3) or match.group(1) == "eseif"):
+    match = re.fullmatch(r"(seif|eseif|cseif)(?:-k(\d+))?(-exact)?", label)
+    if match and (match.group(2) or match.group(3) or match.group(1) in ("eseif", "cseif")):
         name = match.group(1)
         k = int(match.group(2) or 8)
         options: dict[str, Any] = {"max_active": k} if name == "seif" else _max_active_options(name, k)
@@ -289,7 +292,7 @@ def parse_filter(spec: str | FilterSpec) -> FilterSpec:
         return FilterSpec(label, name, options)
     raise ValueError(
         f"unknown filter {spec!r}: use seif-kN, seif-kN-exact, seif-exact, seif-full, eseif, eseif-kN, eseif-exact, "
-        "eseif-kN-exact, eif or ekf"
+        "eseif-kN-exact, cseif, cseif-kN, cseif-exact, cseif-kN-exact, eif or ekf"
     )
 
 

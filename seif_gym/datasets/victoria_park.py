@@ -688,7 +688,7 @@ def _setup(data: VictoriaPark, filter_name: str, config: RunConfig) -> tuple[Sla
     from seif_gym.slam.association import ASSOCIATOR_PRESETS, Associator
 
     motion, sensor = make_models(config)
-    options = {"max_active": config.max_active} if filter_name in ("seif", "eseif") else {}
+    options = {"max_active": config.max_active} if filter_name in ("seif", "eseif", "cseif") else {}
     initial = np.array([data.gps.x[0], data.gps.y[0], math.radians(config.initial_heading_deg)])
     filt = FILTERS[filter_name](motion, sensor, initial, **options)
     association: dict[str, Any] = dict(

@@ -157,6 +157,8 @@ def test_parse_filter():
     assert parse_filter("seif-k4").options == {"max_active": 4}
     assert parse_filter("seif-exact").options == {"max_active": 8, "mean_recovery": "exact"}
     assert parse_filter("ekf").filter == "ekf"
+    assert parse_filter("cseif").filter == "cseif" and parse_filter("cseif").options == {"max_active": 8}
+    assert parse_filter("cseif-k4-exact").options == {"max_active": 4, "mean_recovery": "exact"}
     with pytest.raises(ValueError):
         parse_filter("seif")
     with pytest.raises(ValueError, match="distinct"):

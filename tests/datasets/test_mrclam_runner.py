@@ -53,6 +53,8 @@ def test_mean_controls_match_a_fine_average(simulated):
 def test_true_models_on_simulated_log_are_consistent(simulated):
     ekf = mr.run_robot(simulated[1], "ekf", TRUTH, PLAIN)
     seif = mr.run_robot(simulated[1], "seif", TRUTH, PLAIN)
+    cseif = mr.run_robot(simulated[1], "cseif", TRUTH, PLAIN)
+    assert cseif.scores["pose_rmse_anchored"] < 1.3 * ekf.scores["pose_rmse_anchored"]
     assert ekf.scores["pose_rmse_anchored"] < 0.12
     assert 1.5 < ekf.scores["anees"] < 6.0
     assert ekf.scores["map_rmse_aligned"] < 0.05

@@ -1,6 +1,6 @@
 """Run a SLAM filter of :mod:`seif_gym.slam` on MRCLAM logs and score it against Vicon and the survey.
 
-``python -m seif_gym.datasets.mrclam [--data DIR] --robot N|all --filter ekf|eif|seif|eseif --out OUT.npz
+``python -m seif_gym.datasets.mrclam [--data DIR] --robot N|all --filter ekf|eif|seif|eseif|cseif --out OUT.npz
 [--association known|ml] [--calibration FILE]``
 
 For each robot (:func:`run_robot`):
@@ -66,7 +66,7 @@ if TYPE_CHECKING:
 __all__ = ["MrclamRun", "RunnerConfig", "chi2_band", "main", "plot_runs", "run_robot", "save_runs", "score", "table"]
 
 
-FILTER_NAMES = ("ekf", "eif", "seif", "eseif")
+FILTER_NAMES = ("ekf", "eif", "seif", "eseif", "cseif")
 
 
 @dataclass(frozen=True)
@@ -84,7 +84,7 @@ class RunnerConfig:
     noise_inflation : float
         Factor on the sensor's ``Q``.
     max_active : dict
-        ``max_active`` per filter name (SEIF ``k = 8``, ESEIF ``k = 4``).
+        ``max_active`` per filter name (SEIF and ConservativeSEIF ``k = 8``, ESEIF ``k = 4``).
     initial_std : float
         Standard deviation of each initial pose component (m, rad).
     subtract_range_bias : bool
@@ -97,7 +97,7 @@ class RunnerConfig:
     innovation_gate: float | None = 13.8
     min_interval: float = 2.0
     noise_inflation: float = 12.0
-    max_active: dict[str, int] = field(default_factory=lambda: {"seif": 8, "eseif": 4})
+    max_active: dict[str, int] = field(default_factory=lambda: {"seif": 8, "eseif": 4, "cseif": 8})
     initial_std: float = 1e-3
     subtract_range_bias: bool = True
     max_range: float = 10.0
@@ -239,7 +239,7 @@ def run_robot(
     ----------
     log : MrclamLog
         From :func:`seif_gym.datasets.mrclam.load`.
-    filter_name : {"ekf", "eif", "seif", "eseif"}
+    filter_name : {"ekf", "eif", "seif", "eseif", "cseif"}
     calibration : Calibration
     config : RunnerConfig
     association : {"known", "ml"}
@@ -518,7 +518,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--calibration", default=None,
                         help="calibration JSON (python -m seif_gym.datasets.mrclam calibrate); "
                         "default: calibrate the dataset's ground truth first")  # fmt: skip
-    parser.add_argument("--max-active", type=int, default=None, help="k of the SEIF (8) or ESEIF (4)")
+    parser.add_argument(
+        "--max-active", type=int, default=None, help="k of the SEIF (8), ESEIF (4) or ConservativeSEIF (8)"
+    )
     parser.add_argument("--gate", type=float, default=RunnerConfig.innovation_gate,
                         help="innovation gate, squared Mahalanobis distance (default 13.8; 0 = none)")  # fmt: skip
     parser.add_argument("--min-interval", type=float, default=RunnerConfig.min_interval,

@@ -3,7 +3,8 @@
 Usage::
 
     python -m agents.showcase [--policy ppo] [--env SeifExplore-v2] [--episodes N] [--seed 1000000]
-        [--out showcase | --resume OUT] [--bootstrap N] [--no-batch] [--batch-size 100] [--threads 1] [--quiet]
+        [--out showcase | --resume OUT] [--bootstrap N] [--no-batch] [--batch-size 100] [--threads 1]
+        [--workers N | --ray auto|ADDRESS] [--quiet]
 
 Runs :func:`agents.evaluate.evaluate_agents` for ``random``, ``frontier``,
 ``revisit``, ``info_gain`` and ``--policy`` (a shipped policy's name, default
@@ -19,10 +20,11 @@ best baseline only when that interval lies below zero), writes
 ``--out``, and records one episode of the policy as ``episode.gif``; each file
 whole or not at all, and ``manifest.json`` (every file's SHA-256) last. A
 killed run continues with ``--resume OUT`` and the same arguments.
-Progress goes to stderr (``--quiet``: none). ``--no-batch``, ``--batch-size``
-and ``--threads`` are :func:`agents.evaluate.evaluate_agents`' (the episodes
-run batched where they can, on one thread per process by default; the rows
-are the same either way).
+Progress goes to stderr (``--quiet``: none). ``--no-batch``, ``--batch-size``,
+``--threads``, ``--workers`` and ``--ray`` are :func:`agents.evaluate.evaluate_agents`'
+(the episodes run batched where they can, in this process on one thread by
+default; ``--workers 2`` spreads them over two processes; the rows are the
+same every way).
 """
 
 from __future__ import annotations
@@ -54,6 +56,8 @@ from agents.evaluate import evaluate_agents, limited_threads, markdown_table, pa
 from agents.evaluate.cli import add_batch_arguments, check_batch_arguments
 from agents.evaluate.journal import MANIFEST, ResumeError, RunFinished, RunJournal, write_manifest
 from agents.loading import SHIPPED_POLICIES, agent_labels, check_model_file
+from agents.parallel import add_arguments as add_executor_arguments
+from agents.parallel import from_arguments as executor_from_arguments
 from agents.protocol import HELD_OUT_SEED, held_out_episodes
 from agents.sb3_agent import SB3Agent
 from seif_gym import LATEST_ID
@@ -190,7 +194,9 @@ def main(argv: Sequence[str] | None = None) -> None:
                         help="also a percentile bootstrap interval of the paired differences, N resamples")  # fmt: skip
     parser.add_argument("--quiet", action="store_true", help="no progress on stderr")
     add_batch_arguments(parser)
+    add_executor_arguments(parser)
     args = parser.parse_args(argv)
+    executor = executor_from_arguments(args, parser)
     if args.episodes is None:
         try:
             args.episodes = held_out_episodes(args.env)
@@ -222,7 +228,8 @@ def main(argv: Sequence[str] | None = None) -> None:
     started = time.perf_counter()
     with limited_threads(args.threads):
         rows, summary = evaluate_agents(specs, episodes=args.episodes, seed=args.seed, env_id=args.env, env_kwargs={},
-                                        verbose=not args.quiet, bootstrap=args.bootstrap, batch=not args.no_batch,
+                                        verbose=not args.quiet, bootstrap=args.bootstrap, executor=executor,
+                                        batch=not args.no_batch,
                                         batch_size=args.batch_size, threads=args.threads, journal=journal)  # fmt: skip
         paths = write_outputs(rows, summary, out, manifest=False)
         print(f"{args.env}, {args.episodes} episodes per agent on seeds {args.seed}..{args.seed + args.episodes - 1} "

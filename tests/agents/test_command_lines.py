@@ -95,6 +95,18 @@ def test_showcase_takes_a_shipped_policy_by_name(capsys):
     assert "--policy: 'nobody' is neither a shipped policy (ppo," in capsys.readouterr().err
 
 
+def test_showcase_spreads_its_episodes_like_evaluate(capsys):
+    from agents.showcase import main as showcase_main
+
+    with pytest.raises(SystemExit):
+        showcase_main(["--help"])
+    out = capsys.readouterr().out
+    assert "--workers" in out and "--ray" in out
+    with pytest.raises(SystemExit):
+        showcase_main(["--workers", "0", "--episodes", "1"])
+    assert "--workers" in capsys.readouterr().err
+
+
 def test_every_long_command_takes_resume_and_checks_its_input_first(capsys):
     """``--resume OUT`` on each comparison; the shared checks of ``agents.cli`` behind them."""
     import argparse

@@ -13,12 +13,14 @@ model, a 700-step circle through about 60 landmarks at least 1 m apart, a 3.5 m 
 EKF and the SEIF (k = 8) with the presets ``joint``, ``likelihood`` and ``tentative`` (``--presets`` to
 choose). The ``tentative`` preset was designed on seeds 0..19 of that scenario (:data:`DESIGN_SEEDS`); seeds
 100..111 (:data:`HELD_OUT_SEEDS`, the default of ``--family-a``) and 200..211 (``--family-a --first-seed 200
---seeds 12``) are held out: never used to choose anything.
+--seeds 12``) are held out: no setting was chosen on them (100..111 also scored an intermediate version once;
+``docs/filters/index.md`` tells the story).
 
 Runs :data:`seif_gym.slam.scenarios.FIDELITY_SCENARIOS` (seed ``s`` of a
 scenario is ``make_loop_run(scenario, s)``) with the correspondences hidden:
 each scan goes through an :class:`~seif_gym.slam.association.Associator` of
-``--preset`` (default ``"joint"``, ``Associator()``) and ``--options``
+``--preset`` (default ``"joint"``, the ``Associator()`` of 1.0; today's ``Associator()`` is ``"tentative"``) and
+``--options``
 (``make_associator(...).update(filt, ranges, bearings)``), and
 :class:`~seif_gym.slam.association.AssociationAudit` scores every decision
 against the true ids. Filters: ``EKF(motion, sensor, pose)``,

@@ -190,7 +190,7 @@ class Associator:
         the old one; after ``closure_window`` scans it stays a landmark of its
         own.
     open_tentatives : bool
-        (Default on.) Step 9 (needs ``tentative_closures``): tentative landmarks are
+        (Default on; ignored without ``tentative_closures``.) Step 9: tentative landmarks are
         candidates like any other (the map is not read as without them); each
         deferred lone closure, and each ambiguous measurement (inside a gate,
         not taken, not far enough for a new landmark), starts its own
@@ -328,10 +328,8 @@ class Associator:
         for name, flag in flags:
             if not isinstance(flag, bool):
                 raise TypeError(f"{name} must be a bool, got {type(flag).__name__}")
-        if open_tentatives and not tentative_closures:
-            raise ValueError("open_tentatives needs tentative_closures=True")
         self.tentative_closures = tentative_closures
-        self.open_tentatives = open_tentatives
+        self.open_tentatives = open_tentatives and tentative_closures  # no tentative landmarks: nothing to open
         self.tentative_scans = int(tentative_scans)
         #: open_tentatives: tentative landmark id -> the landmark ids chosen in a scan with it (never its double)
         self._coseen: dict[int, set[int]] = {}

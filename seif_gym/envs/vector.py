@@ -6,14 +6,15 @@ spends most of its time in small Python calls around the filter
 looping over the envs (with ``num_threads > 1``, one parallel loop on numba's threads:
 :mod:`seif_gym.threads`): the worlds
 (:class:`~seif_gym.world.BatchedWorld`), the
-SEIFs or ESEIFs (:class:`~seif_gym.slam.batched.BatchedSEIF`, ``BatchedESEIF``), the observations
+SEIFs, ESEIFs or ConservativeSEIFs (:class:`~seif_gym.slam.batched.BatchedSEIF`, ``BatchedESEIF``,
+``BatchedConservativeSEIF``), the observations
 (:func:`~seif_gym.observation.encode_many`) and the rewards and infos
 (:func:`_score_many`). No per-env Python object takes part in a step; an
 episode's start (``reset``, and autoreset) runs the single env's own reset
 and loads its state into the arrays, so the two cannot drift apart.
 
-Supported in this compiled form: ``filter="seif"`` or ``"eseif"`` (wavefront
-recovery), ``data_association="known"``, ``reward="map_error"``, Thrun's motion
+Supported in this compiled form: ``filter="seif"``, ``"eseif"`` or ``"cseif"`` (the last
+with ``num_threads=1``; wavefront recovery), ``data_association="known"``, ``reward="map_error"``, Thrun's motion
 model and a constant range noise (the defaults of every registered ``-v1`` id,
 and their ESEIF variant). Any other configuration runs as a
 :class:`gymnasium.vector.SyncVectorEnv` of single envs (``backend ==
@@ -49,7 +50,7 @@ from seif_gym.metrics import map_error_kernel, nees_kernel
 from seif_gym.observation import encode_env, encode_many
 from seif_gym.slam import _kernels
 from seif_gym.slam.base import SlamFilter
-from seif_gym.slam.batched import BatchedESEIF, BatchedSEIF
+from seif_gym.slam.batched import BatchedConservativeSEIF, BatchedESEIF, BatchedSEIF
 from seif_gym.slam.models import VelocityMotionModel, wrap_angle
 from seif_gym.slam.seif import DENSE_MARGINALS_UP_TO, SEIF, exact_marginal_covariance
 from seif_gym.threads import check_thread_count, numba_threads
@@ -285,7 +286,9 @@ class SeifExploreVectorEnv(VectorEnv):
         ]
         template = self.envs[0]
         config = template.filter_config
-        compiled = (config.filter in ("seif", "eseif") and config.data_association == "known" and config.mean_recovery == "wavefront"
+        # the ConservativeSEIF's batched update runs on one thread only (the parallel loop runs the SEIF's or the ESEIF's)
+        compiled = ((config.filter in ("seif", "eseif") or (config.filter == "cseif" and self.num_threads == 1))
+                    and config.data_association == "known" and config.mean_recovery == "wavefront"
                     and template.reward_config.reward == "map_error" and not template.measure_time
                     and config.innovation_gate is None and isinstance(template.motion, VelocityMotionModel)
                     and template.world_config.arena_extent is None and template.sensor_config.range_error_time is None
@@ -306,7 +309,7 @@ class SeifExploreVectorEnv(VectorEnv):
         motion = template.motion
         assert isinstance(motion, VelocityMotionModel)  # the compiled kernels are Thrun's model (checked above)
         self._world = BatchedWorld(n, template.world_config, motion, template.sensor)
-        batch = BatchedESEIF if config.filter == "eseif" else BatchedSEIF
+        batch = {"eseif": BatchedESEIF, "cseif": BatchedConservativeSEIF}.get(config.filter, BatchedSEIF)
         self._filters = batch(n, template.world_config.num_landmarks, motion, template.sensor,
                               max_active=config.max_active)  # fmt: skip
         cells = template.encoder.coverage.shape[0]

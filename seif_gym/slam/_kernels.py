@@ -1659,3 +1659,229 @@ def cheapest_cut(omega, local, candidates):
         for c in range(2):
             factor[rows[a], c] = best_u[a, c]
     return best, factor, best_cost
+
+
+@njit(cache=True)
+def apply_cut_block(omega, xi, mu, map_info, position, factor):
+    """Compiled :func:`~seif_gym.slam.cseif.apply_cut`: ``(omega, xi, map_info)`` after the cut of ``position``.
+
+    The same operations in the same order: ``S = U U^T``, ``Omega - S`` with the robot-``m0`` blocks
+    set to zero and symmetrised, ``xi - S mu``, then ``A~ = A_kk + C E^-1 C^T`` (symmetrised) over the
+    landmarks kept. The products and the 2 x 2 solve are numba's (BLAS and LAPACK calls).
+    """
+    size = xi.shape[0]
+    o = 3 + 2 * position
+    u = np.ascontiguousarray(factor)
+    cut = u @ np.ascontiguousarray(u.T)
+    cut_omega = omega - cut
+    for a in range(3):
+        for b in range(2):
+            cut_omega[a, o + b] = 0.0
+            cut_omega[o + b, a] = 0.0
+    new_omega = np.empty((size, size))
+    for a in range(size):
+        for b in range(size):
+            new_omega[a, b] = 0.5 * (cut_omega[a, b] + cut_omega[b, a])
+    new_xi = xi - cut @ np.ascontiguousarray(mu)
+    kept = np.empty(size - 5, dtype=np.int64)
+    r = 0
+    for a in range(3, size):
+        if a != o and a != o + 1:
+            kept[r] = a
+            r += 1
+    # Omega_B~ = Omega~ - (0 (+) A): its coupling C of the landmarks kept to m0, and E
+    coupling = np.empty((size - 5, 2))
+    for a in range(size - 5):
+        for b in range(2):
+            coupling[a, b] = new_omega[kept[a], o + b] - map_info[kept[a] - 3, o - 3 + b]
+    own = np.empty((2, 2))
+    for a in range(2):
+        for b in range(2):
+            own[a, b] = new_omega[o + a, o + b] - map_info[o - 3 + a, o - 3 + b]
+    moved = coupling @ np.linalg.solve(own, np.ascontiguousarray(coupling.T))
+    grown = np.empty((size - 5, size - 5))
+    for a in range(size - 5):
+        for b in range(size - 5):
+            grown[a, b] = map_info[kept[a] - 3, kept[b] - 3] + moved[a, b]
+    new_map_info = np.empty((size - 5, size - 5))
+    for a in range(size - 5):
+        for b in range(size - 5):
+            new_map_info[a, b] = 0.5 * (grown[a, b] + grown[b, a])
+    return new_omega, new_xi, new_map_info
+
+
+# -- many ConservativeSEIFs in one call (seif_gym.slam.batched.BatchedConservativeSEIF) ------------------------------
+@njit(cache=True)
+def _cseif_kept(is_active, active_count, id_to_index, ranges, measured, max_active_hard):
+    """``ConservativeSEIF._within_hard_bound`` as a mask (all ``True``: every measurement kept).
+
+    The active landmarks' measurements stay; of the others, mapped ones first, then the nearest, as
+    many as keep at most ``max(max_active_hard, m)`` landmarks active (``max_active_hard < 0``: no bound).
+    """
+    m = measured.shape[0]
+    kept = np.ones(m, dtype=np.bool_)
+    if max_active_hard < 0 or m == 0:
+        return kept
+    mapped = np.zeros(m, dtype=np.bool_)
+    active = np.zeros(m, dtype=np.bool_)
+    joining = 0
+    for k in range(m):
+        index = id_to_index[measured[k]]
+        mapped[k] = index >= 0
+        if mapped[k]:
+            active[k] = is_active[index]
+        if not active[k]:
+            joining += 1
+    room = max(max_active_hard, m) - active_count  # the ids of one update are distinct
+    if joining <= room:
+        return kept
+    others = np.flatnonzero(~active)
+    order = np.empty(others.shape[0], dtype=np.int64)
+    for c in range(others.shape[0]):  # a stable insertion sort on (not mapped, range), as np.lexsort
+        pos = c
+        key_new, key_range = not mapped[others[c]], ranges[others[c]]
+        while pos > 0:
+            prev = others[order[pos - 1]]
+            prev_new = not mapped[prev]
+            if prev_new > key_new or (prev_new == key_new and ranges[prev] > key_range):
+                order[pos] = order[pos - 1]
+                pos -= 1
+            else:
+                break
+        order[pos] = c
+    for k in range(m):
+        kept[k] = active[k]
+    for c in range(min(max(room, 0), others.shape[0])):
+        kept[others[order[c]]] = True
+    return kept
+
+
+@njit(cache=True)
+def _cseif_sparsify(robot_info, robot_links, landmark_info, neighbour_index, neighbour_info, neighbour_count,
+                    information_vector, mean, block_position, active, counters, is_active, last_observed, max_active,
+                    cut_budget, map_info, cseif_counters):  # fmt: skip
+    """``ConservativeSEIF._sparsify`` (compiled): the cheapest certified cuts until ``max_active`` remain.
+
+    ``map_info[:2a, :2a]`` is ``A`` over the ``a`` active landmarks; ``cseif_counters[0]`` counts the
+    cuts, ``cseif_counters[1]`` the updates whose cuts were deferred (all updated in place).
+    """
+    if max_active < 0:
+        return
+    update_count = counters[2]
+    deferred = False
+    while counters[1] > max_active:
+        count = counters[1]
+        act = active[:count].copy()
+        candidates = np.empty(count, dtype=np.int64)
+        c = 0
+        for p in range(count):
+            if last_observed[act[p]] != update_count:
+                candidates[c] = p
+                c += 1
+        if c == 0:
+            break
+        omega, xi, mu = gather(robot_info, robot_links, landmark_info, neighbour_index, neighbour_info,
+                               neighbour_count, information_vector, mean, block_position, act)  # fmt: skip
+        dim = 2 * count
+        current = np.ascontiguousarray(map_info[:dim, :dim])
+        local = omega.copy()
+        for a in range(dim):
+            for b in range(dim):
+                local[3 + a, 3 + b] -= current[a, b]
+        position, factor, cost = cheapest_cut(omega, local, candidates[:c].copy())
+        if not cost <= cut_budget:
+            deferred = True
+            break
+        omega, xi, new_map_info = apply_cut_block(omega, xi, mu, current, position, factor)
+        scatter(robot_info, robot_links, landmark_info, neighbour_index, neighbour_info, neighbour_count,
+                information_vector, act, omega, xi)  # fmt: skip
+        for p in range(position, count - 1):
+            active[p] = active[p + 1]
+        is_active[act[position]] = False
+        counters[1] = count - 1
+        map_info[: dim - 2, : dim - 2] = new_map_info
+        cseif_counters[0] += 1
+    if deferred:
+        cseif_counters[1] += 1
+
+
+@njit(cache=True)
+def cseif_update_one(robot_info, robot_links, landmark_info, neighbour_index, neighbour_info, neighbour_count,
+                     information_vector, mean, block_position, active, counters, is_active, last_observed,
+                     id_to_index, ids, queue, queued, queue_state, ranges, bearings, measured, noise_info,
+                     max_active, max_active_hard, cut_budget, recovery_landmarks, budget, relaxation, tolerance,
+                     map_info, cseif_counters):  # fmt: skip
+    """``ConservativeSEIF.update_trusted`` (known ids, wavefront recovery, compiled) of one filter of a batch.
+
+    ``counters`` as for :func:`seif_update_one`; ``map_info[:2a, :2a]`` is ``A`` over the ``a`` active
+    landmarks; ``cseif_counters = [cuts, deferred cuts, discarded measurements]`` (all updated in place).
+    The filter's steps in its order: the hard bound's mask, the new landmarks, the measurement update
+    (a landmark that becomes active brings its rows of ``Omega`` into ``A``), the wavefront recovery,
+    the certified cuts.
+    """
+    kept = _cseif_kept(is_active, counters[1], id_to_index, ranges, measured, max_active_hard)
+    use = np.flatnonzero(kept)
+    z_range = ranges[use]
+    z_bearing = bearings[use]
+    z_id = measured[use]
+    indices = _map_ids(mean, counters, id_to_index, ids, z_range, z_bearing, z_id)
+    counters[2] += 1
+    old = counters[1]
+    joining = 0
+    dim = 0
+    grown = np.empty((0, 0))
+    if indices.shape[0] > 0 and max_active >= 0:
+        for k in range(indices.shape[0]):
+            if not is_active[indices[k]]:
+                joining += 1
+    if joining > 0:
+        # A grows by the joining landmarks' rows of Omega before the update (all of them in Omega_A)
+        block = np.empty(old + joining, dtype=np.int64)
+        block[:old] = active[:old]
+        q = old
+        for k in range(indices.shape[0]):
+            if not is_active[indices[k]]:
+                block[q] = indices[k]
+                q += 1
+        omega, _, _ = gather(robot_info, robot_links, landmark_info, neighbour_index, neighbour_info,
+                             neighbour_count, information_vector, mean, block_position, block)  # fmt: skip
+        dim = 2 * (old + joining)
+        grown = omega[3:, 3:].copy()
+        grown[: 2 * old, : 2 * old] = map_info[: 2 * old, : 2 * old]
+    _incorporate_one(robot_info, robot_links, landmark_info, information_vector, mean, active, counters, is_active,
+                     last_observed, indices, z_range, z_bearing, noise_info)  # fmt: skip
+    if joining > 0:
+        map_info[:dim, :dim] = grown
+    _recover_one(robot_info, robot_links, landmark_info, neighbour_index, neighbour_info, neighbour_count,
+                 information_vector, mean, block_position, active, counters, is_active, queue, queued, queue_state,
+                 recovery_landmarks, budget, relaxation, tolerance)  # fmt: skip
+    _cseif_sparsify(robot_info, robot_links, landmark_info, neighbour_index, neighbour_info, neighbour_count,
+                    information_vector, mean, block_position, active, counters, is_active, last_observed, max_active,
+                    cut_budget, map_info, cseif_counters)  # fmt: skip
+    cseif_counters[2] += kept.shape[0] - use.shape[0]
+
+
+@njit(cache=True)
+def cseif_update_env(e, robot_info, robot_links, landmark_info, neighbour_index, neighbour_info, neighbour_count,
+                     information_vector, mean, block_position, active, counters, is_active, last_observed,
+                     id_to_index, ids, queue, queued, queue_state, ranges, bearings, measured, measured_count,
+                     noise_info, max_active, max_active_hard, cut_budget, recovery_landmarks, budget, relaxation,
+                     tolerance, map_info, cseif_counters):  # fmt: skip
+    """:func:`cseif_update_one` of filter ``e`` of a batch, with its first ``measured_count[e]`` measurements."""
+    m = measured_count[e]
+    cseif_update_one(robot_info[e], robot_links[e], landmark_info[e], neighbour_index[e], neighbour_info[e],
+                     neighbour_count[e], information_vector[e], mean[e], block_position[e], active[e], counters[e],
+                     is_active[e], last_observed[e], id_to_index[e], ids[e], queue[e], queued[e], queue_state[e],
+                     ranges[e, :m], bearings[e, :m], measured[e, :m], noise_info, max_active, max_active_hard,
+                     cut_budget, recovery_landmarks, budget, relaxation, tolerance, map_info[e],
+                     cseif_counters[e])  # fmt: skip
+
+
+@njit(cache=True)
+def cseif_update_many(*arguments):
+    """:func:`cseif_update_env` of every filter of a batch, one after another.
+
+    ``arguments``: those of :func:`cseif_update_env` after ``e`` (the first one has the env axis).
+    """
+    for e in range(arguments[0].shape[0]):
+        cseif_update_env(e, *arguments)

@@ -38,6 +38,7 @@ from numpy.typing import ArrayLike
 
 from seif_gym.slam import _kernels
 from seif_gym.slam.base import DEFAULT_INITIAL_POSE_COV
+from seif_gym.slam.cseif import ConservativeSEIF
 from seif_gym.slam.eseif import ESEIF, RELOCALIZATION_RCOND
 from seif_gym.slam.information import InformationStore
 from seif_gym.slam.models import RangeBearingSensor, VelocityMotionModel, wrap_angle
@@ -45,7 +46,7 @@ from seif_gym.slam.seif import SEIF, JournalBuffer, RecoveryQueue
 from seif_gym.type_aliases import BoolArray, FloatArray, IntArray
 from seif_gym.validation import as_count, as_finite_array, as_positive_scalar
 
-__all__ = ["BatchedSEIF", "BatchedESEIF"]
+__all__ = ["BatchedSEIF", "BatchedESEIF", "BatchedConservativeSEIF"]
 
 
 @njit(cache=True)
@@ -260,7 +261,8 @@ class BatchedSEIF:
         -------
         SEIF
             A :class:`~seif_gym.slam.seif.SEIF` (an :class:`~seif_gym.slam.eseif.ESEIF` for a
-            :class:`BatchedESEIF`) with the batch's models and options.
+            :class:`BatchedESEIF`, a :class:`~seif_gym.slam.cseif.ConservativeSEIF` for a
+            :class:`BatchedConservativeSEIF`) with the batch's models and options.
 
         Raises
         ------
@@ -488,3 +490,73 @@ class BatchedESEIF(BatchedSEIF):
         return (self._noise_info, self._noise_cov, self.max_active, self.relocalization_landmarks, self.split_weight,
                 RELOCALIZATION_RCOND, self.recovery_landmarks, self.recovery_budget, self.recovery_relaxation,
                 self.recovery_tolerance, self.eseif_counters)  # fmt: skip
+
+
+class BatchedConservativeSEIF(BatchedSEIF):
+    """``num_filters`` :class:`~seif_gym.slam.cseif.ConservativeSEIF` filters with one motion model, one sensor, one set of options.
+
+    As :class:`BatchedSEIF`, with the ConservativeSEIF's update
+    (:func:`~seif_gym.slam._kernels.cseif_update_many`: the hard bound on the active set, the split's
+    block ``A`` following the active set, certified cuts instead of Thrun's sparsification) and its
+    options ``max_active_hard`` and ``cut_budget`` (``recovery_budget`` defaults to the filter's 512).
+
+    ``map_info[e, :2a, :2a]`` is filter ``e``'s ``A`` (``Omega_A`` over its ``a`` active landmarks, in
+    the order of its active set; the rest of the array is not read), shape (N, 2 capacity, 2 capacity);
+    ``cseif_counters[e]`` holds its ``cuts``, ``deferred_cuts`` and ``discarded_measurements``.
+    """
+
+    FILTER = ConservativeSEIF
+    _FILTER_OPTIONS = ("max_active_hard", "cut_budget")
+
+    def __init__(self, num_filters: int, capacity: int, motion: VelocityMotionModel, sensor: RangeBearingSensor, *,
+                 recovery_budget: int = 512, max_active_hard: int | None = None, cut_budget: float = 0.9,
+                 **options: Any) -> None:  # fmt: skip
+        super().__init__(num_filters, capacity, motion, sensor, recovery_budget=recovery_budget,
+                         max_active_hard=max_active_hard, cut_budget=cut_budget, **options)  # fmt: skip
+        reference = self._reference
+        assert isinstance(reference, ConservativeSEIF)
+        self.max_active_hard = -1 if reference.max_active_hard is None else reference.max_active_hard
+        self.cut_budget = reference.cut_budget
+        self.map_info = np.zeros((self.num_filters, 2 * self.capacity, 2 * self.capacity))
+        #: per filter: cuts, deferred cuts, discarded measurements
+        self.cseif_counters = np.zeros((self.num_filters, 3), dtype=np.int64)
+
+    def reset(self, index: int, pose: ArrayLike, pose_cov: ArrayLike | None = None) -> None:
+        super().reset(index, pose, pose_cov)
+        self.map_info[int(index)] = 0.0
+        self.cseif_counters[int(index)] = 0
+
+    def load(self, index: int, filt: SEIF) -> None:
+        super().load(index, filt)
+        assert isinstance(filt, ConservativeSEIF)  # load checked the type
+        e = int(index)
+        dim = filt._map_info.shape[0]
+        if filt.max_active is not None and dim != 2 * len(filt._active):
+            raise ValueError(f"filt's split block has shape {filt._map_info.shape}, not that of its active set")
+        self.map_info[e, :dim, :dim] = filt._map_info
+        self.cseif_counters[e] = (filt.cuts, filt.deferred_cuts, filt.discarded_measurements)
+
+    def to_filter(self, index: int) -> ConservativeSEIF:
+        filt = super().to_filter(index)
+        assert isinstance(filt, ConservativeSEIF)  # FILTER
+        e = int(index)
+        dim = 0 if filt.max_active is None else 2 * int(self.counters[e, _ACTIVE])
+        filt._map_info = self.map_info[e, :dim, :dim].copy()
+        filt.cuts, filt.deferred_cuts, filt.discarded_measurements = (int(count) for count in self.cseif_counters[e])
+        return filt
+
+    def update_trusted(self, ranges: FloatArray, bearings: FloatArray, ids: IntArray, counts: IntArray) -> None:
+        _kernels.cseif_update_many(*self.kernel_arrays(), *self.bookkeeping_arrays(), ranges, bearings, ids, counts,
+                                   self._noise_info, self.max_active, self.max_active_hard, self.cut_budget,
+                                   self.recovery_landmarks, self.recovery_budget, self.recovery_relaxation,
+                                   self.recovery_tolerance, self.map_info, self.cseif_counters)  # fmt: skip
+
+    def update_arguments(self) -> tuple[Any, ...]:
+        """Not available: the ConservativeSEIF's update is not one of :func:`~seif_gym.slam._kernels.eseif_update_env`'s.
+
+        Raises
+        ------
+        NotImplementedError
+            Always (step a ``BatchedConservativeSEIF`` with :meth:`update` or :meth:`update_trusted`).
+        """
+        raise NotImplementedError("the ConservativeSEIF's batched update runs through update_trusted only")

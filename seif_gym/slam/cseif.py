@@ -159,7 +159,13 @@ def cut_direction(omega: FloatArray, local: FloatArray, position: int) -> tuple[
 
 
 def apply_cut(
-    omega: FloatArray, xi: FloatArray, mu: FloatArray, map_info: FloatArray, position: int, factor: FloatArray
+    omega: FloatArray,
+    xi: FloatArray,
+    mu: FloatArray,
+    map_info: FloatArray,
+    position: int,
+    factor: FloatArray,
+    compiled: bool = False,
 ) -> tuple[FloatArray, FloatArray, FloatArray]:
     """Subtract ``S = U U^T`` and move the landmark's remaining local information into ``Omega_A``.
 
@@ -173,6 +179,11 @@ def apply_cut(
         Block position of the landmark being deactivated.
     factor : ndarray, shape (s, 2)
         ``U`` of :func:`cut_direction`.
+    compiled : bool, default False
+        Run the compiled kernel :func:`~seif_gym.slam._kernels.apply_cut_block` (the same
+        operations in the same order, with numba's matrix products and 2 x 2 solve; the filter's
+        compiled implementation and the batched filters of
+        :class:`~seif_gym.slam.batched.BatchedConservativeSEIF` share it) instead of numpy.
 
     Returns
     -------
@@ -195,6 +206,9 @@ def apply_cut(
     ``K - C E^-1 C^T`` (positive semidefinite, on the robot and the landmarks
     kept: the new ``Omega_B``). ``Omega`` itself does not change in the move.
     """
+    if compiled:
+        omega, xi, map_info = _kernels.apply_cut_block(omega, xi, mu, map_info, position, factor)
+        return omega, xi, map_info
     size = len(xi)
     cut = factor @ factor.T
     m0 = np.array([3 + 2 * position, 4 + 2 * position])
@@ -413,7 +427,8 @@ class ConservativeSEIF(SEIF):
             if not cost <= self.cut_budget:
                 deferred = True
                 break
-            omega, xi, map_info = apply_cut(omega, xi, mu, self._map_info, position, factor)
+            compiled = self.options["implementation"] == "compiled"
+            omega, xi, map_info = apply_cut(omega, xi, mu, self._map_info, position, factor, compiled=compiled)
             store.reserve_degree(self._active, len(self._active))
             _kernels.scatter(*store.kernel_arrays()[:7], self._active, omega, xi)
             gone = int(self._active[position])

@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from seif_gym.slam import ESEIF, SEIF
-from seif_gym.slam.batched import BatchedESEIF, BatchedSEIF
+from seif_gym.slam import ESEIF, SEIF, ConservativeSEIF
+from seif_gym.slam.batched import BatchedConservativeSEIF, BatchedESEIF, BatchedSEIF
 from seif_gym.slam.scenarios import FIDELITY_SCENARIOS, make_loop_run
 
 
@@ -134,7 +134,7 @@ def test_batched_seif_refuses_filters_it_cannot_reproduce():
         BatchedESEIF(1, 10, motion, sensor, split_weight=1.5)
 
 
-@pytest.mark.parametrize("batch_class", [BatchedSEIF, BatchedESEIF])
+@pytest.mark.parametrize("batch_class", [BatchedSEIF, BatchedESEIF, BatchedConservativeSEIF])
 def test_to_filter_gives_the_filter_the_batch_holds_and_steps_it_alike(batch_class):
     """to_filter is load's inverse: a filter object equal to the batch's row, which steps on as the row does."""
     from seif_gym.slam.rollout import expected_rollouts
@@ -198,3 +198,95 @@ def test_a_vector_envs_sub_filter_is_its_sub_envs_filter():
         vector.unwrapped.sub_filter(2)
     vector.close()
     single.close()
+
+
+# -- the ConservativeSEIF ------------------------------------------------------------------------------------
+def _assert_same_cseif(batch: BatchedConservativeSEIF, e: int, filt: ConservativeSEIF, step: int) -> None:
+    """Every array of row ``e`` equals ``filt``'s, the split's block ``A`` and the counters included."""
+    _assert_same(batch, e, filt, step)
+    dim = filt._map_info.shape[0]
+    assert dim == (2 * len(filt._active) if filt.max_active is not None else 0), (e, step)
+    np.testing.assert_array_equal(batch.map_info[e, :dim, :dim], filt._map_info, err_msg=f"A, filter {e}, step {step}")
+    counters = (filt.cuts, filt.deferred_cuts, filt.discarded_measurements)
+    assert tuple(batch.cseif_counters[e]) == counters, (e, step)
+    head, size = batch.queue_state[e]
+    ring = batch.queue[e, (head + np.arange(size)) % batch.capacity]
+    np.testing.assert_array_equal(ring, filt._queue.ordered(), err_msg=f"queue, filter {e}, step {step}")
+
+
+def _step_both(batch, filters, runs, t):
+    width = max(len(run.ids[t]) for run in runs)
+    batch.predict(np.array([run.controls[t] for run in runs]), runs[0].dt)
+    ranges, bearings = np.ones((len(runs), width)), np.zeros((len(runs), width))
+    ids, counts = np.zeros((len(runs), width), dtype=np.int64), np.zeros(len(runs), dtype=np.int64)
+    for e, (run, filt) in enumerate(zip(runs, filters)):
+        filt.predict(run.controls[t], run.dt)
+        m = len(run.ids[t])
+        ranges[e, :m], bearings[e, :m], ids[e, :m], counts[e] = run.ranges[t], run.bearings[t], run.ids[t], m
+        filt.update(run.ranges[t], run.bearings[t], run.ids[t])
+    batch.update(ranges, bearings, ids, counts)
+
+
+@pytest.mark.parametrize(
+    "scenario, max_active, steps",
+    [
+        ("circle", 8, 120),  # cuts and measurements the hard bound discards
+        pytest.param("circle", 8, None, marks=pytest.mark.slow),
+        pytest.param("rectangle-narrow", 4, None, marks=pytest.mark.slow),  # deferred cuts
+        pytest.param("figure8-sparse", 3, None, marks=pytest.mark.slow),
+        ("rectangle-narrow", None, 60),  # no bound: no cuts, no split
+    ],
+)
+def test_batched_cseif_equals_cseif_objects_bit_for_bit(scenario, max_active, steps):
+    runs = [make_loop_run(FIDELITY_SCENARIOS[scenario], seed) for seed in (0, 1, 2)]
+    motion, sensor = runs[0][0], runs[0][1]
+    runs = [run for _, _, run in runs]
+    batch = BatchedConservativeSEIF(len(runs), max(len(run.landmarks) for run in runs), motion, sensor,
+                                    max_active=max_active)  # fmt: skip
+    filters = [ConservativeSEIF(motion, sensor, run.initial_pose, max_active=max_active) for run in runs]
+    for e, run in enumerate(runs):
+        batch.reset(e, run.initial_pose)
+        _assert_same_cseif(batch, e, filters[e], -1)
+    steps = min(run.steps for run in runs) if steps is None else steps
+    for t in range(steps):
+        _step_both(batch, filters, runs, t)
+        for e, filt in enumerate(filters):
+            _assert_same_cseif(batch, e, filt, t)
+    if max_active is not None:
+        assert batch.cseif_counters[:, 0].min() > 0  # every filter cut links
+    if scenario == "circle":
+        assert batch.cseif_counters[:, 2].min() > 0  # the hard bound left measurements out
+    if scenario == "rectangle-narrow" and max_active is not None:
+        assert batch.cseif_counters[:, 1].min() > 0  # cuts were deferred
+
+
+def test_batched_cseif_loads_a_filter_mid_run_and_steps_it_alike():
+    motion, sensor, run = make_loop_run(FIDELITY_SCENARIOS["rectangle-narrow"], 1)
+    filt = ConservativeSEIF(motion, sensor, run.initial_pose, max_active=4)
+    for t in range(80):
+        filt.predict(run.controls[t], run.dt)
+        filt.update(run.ranges[t], run.bearings[t], run.ids[t])
+    assert filt.cuts > 0 and len(filt._active) > 0
+    batch = BatchedConservativeSEIF(1, len(run.landmarks), motion, sensor, max_active=4)
+    batch.load(0, filt)
+    _assert_same_cseif(batch, 0, filt, 80)
+    _assert_same_cseif(batch, 0, batch.to_filter(0), 80)
+    for t in range(80, 140):
+        _step_both(batch, [filt], [run], t)
+        _assert_same_cseif(batch, 0, filt, t)
+
+
+def test_batched_cseif_refuses_filters_it_cannot_reproduce():
+    motion, sensor, run = make_loop_run(FIDELITY_SCENARIOS["circle"], 0)
+    batch = BatchedConservativeSEIF(1, 10, motion, sensor, max_active=4)
+    assert batch.recovery_budget == ConservativeSEIF.OPTIONS["recovery_budget"]
+    with pytest.raises(TypeError, match="ConservativeSEIF"):
+        batch.load(0, SEIF(motion, sensor, run.initial_pose, max_active=4))
+    with pytest.raises(ValueError, match="options"):
+        batch.load(0, ConservativeSEIF(motion, sensor, run.initial_pose, max_active=4, cut_budget=0.5))
+    with pytest.raises(ValueError, match="options"):
+        batch.load(0, ConservativeSEIF(motion, sensor, run.initial_pose, max_active=4, max_active_hard=5))
+    with pytest.raises(ValueError, match="cut_budget"):
+        BatchedConservativeSEIF(1, 10, motion, sensor, cut_budget=1.5)
+    with pytest.raises(NotImplementedError, match="update_trusted"):
+        batch.update_arguments()

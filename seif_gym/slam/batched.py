@@ -8,7 +8,10 @@ compiled kernel per step (:func:`~seif_gym.slam._kernels.seif_predict_many`,
 in the step loop. Each filter computes exactly what a
 :class:`~seif_gym.slam.seif.SEIF` with the same options computes, the same
 kernels in the same order (``tests/slam/test_batched.py`` compares every array
-after every step, bit for bit).
+after every step, bit for bit). :class:`BatchedESEIF` and
+:class:`BatchedConservativeSEIF` do the same for the
+:class:`~seif_gym.slam.eseif.ESEIF` and the
+:class:`~seif_gym.slam.cseif.ConservativeSEIF`.
 
 The arrays are sized once: ``capacity`` landmarks per filter (the number of
 landmarks of the world, for an env) and as many neighbours each, so nothing

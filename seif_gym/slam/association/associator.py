@@ -336,6 +336,7 @@ class Associator:
         self._near: set[int] = set()  # open_tentatives: the ids of the last scan's candidates and decisions
         self._local: set[int] = set()  # open_tentatives: tentative landmarks whose old landmark was in view
         self._misses: dict[int, int] = {}  # open_tentatives: tentative landmark -> scans that passed it over
+        self._last_near: dict[int, int] = {}  # open_tentatives: tentative landmark -> the last scan it was by the robot
         self._miss_limit = math.ceil(math.log(0.01) / math.log1p(-self.detection)) if self.detection > 0.0 else 0
         if exclusion_margin is not None:
             if isinstance(exclusion_margin, bool) or not isinstance(exclusion_margin, (int, float)):
@@ -642,6 +643,7 @@ class Associator:
                 del self.tentatives[i]
                 self._coseen.pop(i, None)
                 self._local.discard(i)
+                self._last_near.pop(i, None)
                 self._misses.pop(i, None)
 
     def _merge(self, filt: SlamFilter, keep: int, remove: int) -> None:
@@ -651,6 +653,7 @@ class Associator:
         self.started.pop(remove, None)
         self.tentatives.pop(remove, None)
         self._local.discard(remove)
+        self._last_near.pop(remove, None)
         self._misses.pop(remove, None)
         self.signatures.merge(keep, remove)
         if self._coseen:
@@ -713,11 +716,18 @@ class Associator:
             if new_id not in self.tentatives:  # confirmed by a merge of this call
                 continue
             if near is not None and new_id not in near and old_id not in near:
-                # open_tentatives: only the tentative landmarks by the robot are tested (a bounded set)
+                last_near = self._last_near.get(new_id, started)
+            else:
+                last_near = now
+                if near is not None:
+                    self._last_near[new_id] = now
+            if now - last_near > self.closure_window:
+                # open_tentatives: only the tentative landmarks by the robot lately are tested (a bounded set)
                 if now - started > life:
                     del self.tentatives[new_id]
                     self._coseen.pop(new_id, None)
                     self._local.discard(new_id)
+                    self._last_near.pop(new_id, None)
                     self._misses.pop(new_id, None)
                 self._misses.pop(new_id, None)
                 continue
@@ -727,6 +737,7 @@ class Associator:
                 del self.tentatives[new_id]
                 self._coseen.pop(new_id, None)
                 self._local.discard(new_id)
+                self._last_near.pop(new_id, None)
                 self._misses.pop(new_id, None)
                 continue
             distinct = self.open_tentatives and old_id in self._coseen.get(new_id, ())
@@ -755,6 +766,7 @@ class Associator:
                 del self.tentatives[new_id]
                 self._coseen.pop(new_id, None)
                 self._local.discard(new_id)
+                self._last_near.pop(new_id, None)
                 self._misses.pop(new_id, None)
         self.stats.merged += len(merges)
         return merges

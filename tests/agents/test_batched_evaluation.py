@@ -77,12 +77,12 @@ def test_batched_rows_equal_serial_rows_on_full_episodes_for_each_shipped_policy
 
 @pytest.mark.slow
 def test_batched_evaluation_reproduces_the_published_leaderboard():
-    """100 held-out episodes of SeifExplore-v2, batched: the leaderboard's means, to the last bit."""
+    """100 held-out episodes of SeifExplore-v2, every baseline and two policies batched: the leaderboard's means, to the last bit."""
     published = json.loads((ROOT / "docs" / "leaderboard.json").read_text())
     rows = {row["agent"]: row for row in published["rows"] if row["env_id"] == "SeifExplore-v2"}
     episodes = published["episodes"]["SeifExplore-v2"]
-    _, summary = evaluate_agents(["frontier", "revisit", "ppo", "ppo_lstm_seif_explore_v2"], episodes,
-                                 HELD_OUT_SEED, "SeifExplore-v2")  # fmt: skip
+    agents = ["random", "frontier", "revisit", "info_gain", "ppo", "ppo_lstm_seif_explore_v2"]
+    _, summary = evaluate_agents(agents, episodes, HELD_OUT_SEED, "SeifExplore-v2")
     for label, entry in summary["agents"].items():
         assert entry["final_map_error"]["mean"] == rows[label]["final_map_error"], label
         assert entry["pose_rmse"]["mean"] == rows[label]["pose_rmse"], label

@@ -15,6 +15,7 @@ from numpy.typing import NDArray
 from agents.base import Observation
 from agents.baselines.frontier import FrontierAgent, _ExploreMemory
 from agents.baselines.geometry import GEOMETRY_READS, Geometry, env_list, unwrapped_env
+from seif_gym.envs.vector import SeifExploreVectorEnv
 from seif_gym.observation import (
     read_belief_map,
 )
@@ -53,11 +54,7 @@ class _SubEnv:
 def _belief_sources(env: Any) -> list[Any]:
     """What :class:`InfoGainAgent` reads per batch row: each env's unwrapped env, or a vector env's sub-envs."""
     base = unwrapped_env(env)
-    if (
-        base is not None
-        and callable(getattr(base, "sub_filter", None))
-        and isinstance(getattr(base, "num_envs", None), int)
-    ):
+    if isinstance(base, SeifExploreVectorEnv):  # a type test: a single env is read for its belief alone
         return [_SubEnv(base, e) for e in range(base.num_envs)]
     return [unwrapped_env(e) for e in env_list(env)]
 

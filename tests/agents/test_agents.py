@@ -506,7 +506,13 @@ def test_cli_with_an_sb3_model_and_vecnormalize(tmp_path, capsys) -> None:
     assert "Paired per-seed differences of final map error to the best baseline, frontier" in printed
     assert "| policy | " in printed.split("Paired")[1]
     assert "frontier: 2 episodes" in captured.err  # progress on stderr (none with --quiet)
-    assert {path.name for path in out.iterdir()} == {"results.csv", "summary.json", "summary.md", "map_error.png"}
+    assert {path.name for path in out.iterdir()} == {
+        "results.csv",
+        "summary.json",
+        "summary.md",
+        "map_error.png",
+        "manifest.json",
+    }
     assert list(json.loads((out / "summary.json").read_text())["agents"]) == ["frontier", "policy"]
 
 

@@ -692,6 +692,7 @@ def _setup(data: VictoriaPark, filter_name: str, config: RunConfig) -> tuple[Sla
     initial = np.array([data.gps.x[0], data.gps.y[0], math.radians(config.initial_heading_deg)])
     filt = FILTERS[filter_name](motion, sensor, initial, **options)
     association: dict[str, Any] = dict(
+        ASSOCIATOR_PRESETS["joint"],  # the settings these runs were measured with, whatever the library's default
         gate=config.gate, new_landmark=config.new_landmark, candidate_radius=config.candidate_radius,
         min_separation=config.min_separation, signature_sigma=config.signature_sigma,
         signature_per_metre=config.signature_per_metre, neighbours=config.blanket_neighbours,

@@ -14,7 +14,7 @@ import pytest
 
 from seif_gym.slam import EIF, EKF, ESEIF, SEIF
 from seif_gym.slam import ekf as ekf_module
-from seif_gym.slam.association import AssociationAudit, Associator, rigid_submap_match
+from seif_gym.slam.association import ASSOCIATOR_PRESETS, AssociationAudit, Associator, rigid_submap_match
 from seif_gym.slam.base import UnknownLandmarkError
 from seif_gym.slam.information import InformationStore
 from seif_gym.slam.scenarios import FIDELITY_SCENARIOS, make_loop_run
@@ -240,7 +240,7 @@ def test_associator_validates_the_merge_options():
 def association_run(scenario: str, seed: int, loop_merge: bool) -> AssociationAudit:
     motion, sensor, run = make_loop_run(FIDELITY_SCENARIOS[scenario], seed)
     filt = SEIF(motion, sensor, run.initial_pose, max_active=8)
-    associator = Associator(loop_merge=loop_merge)
+    associator = Associator(**{**ASSOCIATOR_PRESETS["joint"], "loop_merge": loop_merge})  # the joint preset's runs
     audit = AssociationAudit()
     for t in range(run.steps):
         filt.predict(run.controls[t], run.dt)
@@ -313,7 +313,8 @@ def test_a_tentative_landmark_is_no_candidate_and_expires():
     """While tentative, a landmark takes no measurement through the search; after ``closure_window`` it is let go."""
     motion, sensor, run = make_loop_run(FIDELITY_SCENARIOS["rectangle-narrow"], 0)
     filt = EKF(motion, sensor, run.initial_pose)
-    associator = Associator(tentative_closures=True, closure_window=5)
+    # the revisable stage: tentative landmarks hidden from the search (the tentative preset opens them)
+    associator = Associator(**{**ASSOCIATOR_PRESETS["joint"], "tentative_closures": True, "closure_window": 5})
     seen_tentative = False
     for t in range(run.steps):
         filt.predict(run.controls[t], run.dt)

@@ -276,9 +276,9 @@ def run_robot(
     filt = _make_filter(filter_name, calibration, config, initial)
     associator = None
     if association == "ml":
-        from seif_gym.slam.association import Associator
+        from seif_gym.slam.association import make_associator
 
-        associator = Associator()
+        associator = make_associator("joint")  # the preset these runs were measured with
     ranges_all = meas.range - (offsets.range_bias if config.subtract_range_bias else 0.0)
     bearings_all = wrap_angle(meas.bearing - offsets.bearing_bias)
     subjects_all = meas.subject

@@ -4,15 +4,20 @@ Usage::
 
     python benchmarks/bench_evaluation.py [--episodes 20] [--env SeifExplore-v2] [--policy ppo]
         [--agents random,frontier,revisit,info_gain,ppo] [--decisions 100] [--load 1] [--skip-table]
+        [--per-agent] [--workers 2]
 
 Three measurements, each printed as a table:
 
 1. The showcase's table: :func:`agents.evaluate.evaluate_agents` of the main job's agents (the
    baselines and ``--policy``) on ``--episodes`` held-out episodes of ``--env``, once as before
    (``batch=False``, every episode one after another in a single env, on torch's default thread
-   count) and once as now (``batch=True`` on one thread per process), each agent timed alone; the
-   rows are checked equal but for the measured decision times. The showcase runs the protocol's
-   100 episodes; the default here is 20 (``--episodes 100`` for the showcase's own count).
+   count) and once as now (``batch=True`` on one thread per process), each one call of all the
+   agents as the showcase makes it (``--per-agent``: also each agent alone), and once more as now
+   spread over ``--workers`` processes (``python -m agents.showcase --workers 2``); the rows are
+   checked equal but for the measured decision times. The showcase runs the protocol's 100
+   episodes; the default here is 20 (``--episodes 100`` for the showcase's own count).
+   The ceiling of the batched call (measurement 2) is printed beside it: the decision's
+   floating-point operations against this core's one-thread matrix-product rate.
 2. Decisions per second of ``--policy``: its ``predict`` on the observations of ``--decisions``
    sub-envs (after 20 random steps), one call per observation (batch 1: on torch's default threads,
    the previous path, and on one thread) and one call for all of them (inside
@@ -45,6 +50,7 @@ import seif_gym  # noqa: F401  (registers the environments)
 from agents.baselines import BASELINES, InfoGainAgent
 from agents.evaluate import evaluate_agents, limited_threads, make_evaluation_env
 from agents.loading import SHIPPED_POLICIES, load_agent
+from agents.parallel import Executor
 from agents.protocol import HELD_OUT_SEED
 from agents.sb3_agent import SB3Agent
 from seif_gym import LATEST_ID
@@ -71,31 +77,39 @@ def previous_planner(enabled: bool) -> Iterator[None]:
         InfoGainAgent.plan = plan  # type: ignore[method-assign]
 
 
-def table_times(specs: Sequence[str], episodes: int, env_id: str) -> None:
-    """Measurement 1: each agent's share of the showcase's table, the previous path and the batched one."""
+def _evaluate(specs: Sequence[str], episodes: int, env_id: str, *, now: bool, workers: int = 1) -> tuple[float, Any]:
+    """Seconds and untimed rows of one :func:`evaluate_agents` call, the previous path or the new one."""
+    executor = Executor(workers=workers)
+    started = time.perf_counter()
+    with previous_planner(enabled=not now):
+        result, _ = evaluate_agents(specs, episodes, HELD_OUT_SEED, env_id, batch=now,
+                                    threads=1 if now else DEFAULT_THREADS, executor=executor)  # fmt: skip
+    return time.perf_counter() - started, untimed(result)
+
+
+def table_times(specs: Sequence[str], episodes: int, env_id: str, *, per_agent: bool = False, workers: int = 2) -> None:
+    """Measurement 1: the showcase's table, the previous path and the batched one (and, optionally, each agent's share)."""
     print(f"## The showcase's table: {', '.join(specs)} on {episodes} held-out episodes of {env_id}\n")
     print(
         f"previous: batch=False, torch's default {DEFAULT_THREADS} threads, info_gain's previous planner "
-        "(InfoGainAgent._plan_reference: a deep copy of the filter per arc); now: batch=True, threads=1\n"
+        "(InfoGainAgent._plan_reference: a deep copy of the filter per arc); now: batch=True, threads=1; "
+        "each row one evaluate_agents call, as the showcase makes it\n"
     )
-    print("| agent | previous (s) | now (s) | speed-up | rows equal |")
+    for now in (False, True):  # loading the compiled kernels and the models out of the timing
+        evaluate_agents(specs, 2, HELD_OUT_SEED, env_id, {"max_episode_steps": 3}, batch=now)
+    print("| agents | previous (s) | now (s) | speed-up | rows equal |")
     print("|---|--:|--:|--:|---|")
-    totals = [0.0, 0.0]
-    for batch in (False, True):  # loading the compiled kernels and the models out of the timing
-        evaluate_agents(specs, 2, HELD_OUT_SEED, env_id, {"max_episode_steps": 3}, batch=batch)
-    for spec in specs:
-        times, rows = [], []
-        for batch, threads in ((False, DEFAULT_THREADS), (True, 1)):
-            started = time.perf_counter()
-            with previous_planner(enabled=not batch):
-                result, _ = evaluate_agents([spec], episodes, HELD_OUT_SEED, env_id, batch=batch, threads=threads)
-            times.append(time.perf_counter() - started)
-            rows.append(untimed(result))
-        totals = [totals[0] + times[0], totals[1] + times[1]]
-        label = spec.split("=", 1)[0]
-        equal = "yes" if rows[0] == rows[1] else "NO"
-        print(f"| {label} | {times[0]:.1f} | {times[1]:.1f} | {times[0] / times[1]:.1f}x | {equal} |", flush=True)
-    print(f"| **table** | **{totals[0]:.1f}** | **{totals[1]:.1f}** | **{totals[0] / totals[1]:.1f}x** | |\n")
+    for spec in specs if per_agent else []:
+        (before, expected), (after, rows) = (_evaluate([spec], episodes, env_id, now=now) for now in (False, True))
+        equal = "yes" if rows == expected else "NO"
+        print(f"| {spec.split('=', 1)[0]} | {before:.1f} | {after:.1f} | {before / after:.1f}x | {equal} |", flush=True)
+    before, expected = _evaluate(specs, episodes, env_id, now=False)
+    after, rows = _evaluate(specs, episodes, env_id, now=True)
+    equal = "yes" if rows == expected else "NO"
+    print(f"| **the table** | **{before:.1f}** | **{after:.1f}** | **{before / after:.1f}x** | {equal} |", flush=True)
+    spread, rows = _evaluate(specs, episodes, env_id, now=True, workers=workers)
+    equal = "yes" if rows == expected else "NO"
+    print(f"| the table, `--workers {workers}` | {before:.1f} | {spread:.1f} | {before / spread:.1f}x | {equal} |\n")
 
 
 def best_time(function: Callable[[], Any], seconds: float = 1.0, repeats: int = 3) -> float:
@@ -242,17 +256,20 @@ def main(argv: Sequence[str] | None = None) -> None:
     parser.add_argument("--decisions", type=int, default=100, help="observations of the batched call (default 100)")
     parser.add_argument("--load", type=int, default=1, help="busy processes of the load test (default 1)")
     parser.add_argument("--skip-table", action="store_true", help="only the decision measurements")
+    parser.add_argument("--per-agent", action="store_true", help="also each agent's share of the table, timed alone")
+    parser.add_argument("--workers", type=int, default=2, help="processes of the table's spread run (default 2)")
     args = parser.parse_args(argv)
     if args.policy not in SHIPPED_POLICIES:
         parser.error(f"--policy must be a shipped policy ({', '.join(SHIPPED_POLICIES)}), got {args.policy!r}")
-    for name, value in (("--episodes", args.episodes), ("--decisions", args.decisions), ("--load", args.load)):
+    for name, value in (("--episodes", args.episodes), ("--decisions", args.decisions), ("--load", args.load),
+                        ("--workers", args.workers)):  # fmt: skip
         if value < 1:
             parser.error(f"{name} must be positive, got {value}")
     specs = args.agents.split(",") if args.agents else [*BASELINES, args.policy]
     print(f"# Evaluation speed ({platform.processor() or platform.machine()}, {os.cpu_count()} CPUs, "
           f"torch {torch.__version__}, default {DEFAULT_THREADS} torch threads)\n")  # fmt: skip
     if not args.skip_table:
-        table_times(specs, args.episodes, args.env)
+        table_times(specs, args.episodes, args.env, per_agent=args.per_agent, workers=args.workers)
     decision_rates(args.policy, args.env, args.decisions)
     under_load(args.policy, args.env, args.load)
 

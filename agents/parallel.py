@@ -310,10 +310,19 @@ def chunks(items: Sequence[Any], slots: int, *, together: bool = False) -> list[
 
 
 # -- command line ---------------------------------------------------------------------------------
-def add_arguments(parser: Any) -> None:
-    """Add ``--workers``, ``--ray`` and ``--ray-retries`` to a harness's ``argparse`` parser."""
+def available_cores(limit: int = 4) -> int:
+    """The cores this process may run on (its CPU affinity), at most ``limit``: a default for ``--workers``."""
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+    return max(1, min(int(limit), cores))
+
+
+def add_arguments(parser: Any, *, workers: int = 1) -> None:
+    """Add ``--workers`` (default ``workers``), ``--ray`` and ``--ray-retries`` to a harness's ``argparse`` parser."""
     parser.add_argument(
-        "--workers", type=int, default=1, help="local processes running the episodes (default 1: this process)"
+        "--workers",
+        type=int,
+        default=workers,
+        help=f"local processes running the episodes (default {workers}{': this process' if workers == 1 else ''})",
     )
     parser.add_argument(
         "--ray",

@@ -22,9 +22,9 @@ whole or not at all, and ``manifest.json`` (every file's SHA-256) last. A
 killed run continues with ``--resume OUT`` and the same arguments.
 Progress goes to stderr (``--quiet``: none). ``--no-batch``, ``--batch-size``,
 ``--threads``, ``--workers`` and ``--ray`` are :func:`agents.evaluate.evaluate_agents`'
-(the episodes run batched where they can, in this process on one thread by
-default; ``--workers 2`` spreads them over two processes; the rows are the
-same every way).
+(the episodes run batched where they can, on one thread per process, spread
+over as many processes as the machine has cores, at most 4, by default:
+``--workers 1`` keeps them in this process; the rows are the same every way).
 """
 
 from __future__ import annotations
@@ -57,6 +57,7 @@ from agents.evaluate.cli import add_batch_arguments, check_batch_arguments
 from agents.evaluate.journal import MANIFEST, ResumeError, RunFinished, RunJournal, write_manifest
 from agents.loading import SHIPPED_POLICIES, agent_labels, check_model_file
 from agents.parallel import add_arguments as add_executor_arguments
+from agents.parallel import available_cores
 from agents.parallel import from_arguments as executor_from_arguments
 from agents.protocol import HELD_OUT_SEED, held_out_episodes
 from agents.sb3_agent import SB3Agent
@@ -194,7 +195,7 @@ def main(argv: Sequence[str] | None = None) -> None:
                         help="also a percentile bootstrap interval of the paired differences, N resamples")  # fmt: skip
     parser.add_argument("--quiet", action="store_true", help="no progress on stderr")
     add_batch_arguments(parser)
-    add_executor_arguments(parser)
+    add_executor_arguments(parser, workers=available_cores())  # the main job uses the machine's cores
     args = parser.parse_args(argv)
     executor = executor_from_arguments(args, parser)
     if args.episodes is None:

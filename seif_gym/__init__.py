@@ -16,7 +16,7 @@ from gymnasium.envs.registration import register, registry
 
 from seif_gym.envs.mrclam import mrclam_kwargs
 
-__version__ = "1.0.0"
+__version__ = "1.1.0"
 
 ENTRY_POINT = "seif_gym.envs.explore:SeifExploreEnv"
 #: ``gym.make_vec(id, num_envs=N)`` builds this: N envs advanced by compiled kernels (seif_gym/envs/vector.py).

@@ -78,7 +78,7 @@ from agents.cli import (
 )
 from agents.cli import seed as seed_type
 from agents.evaluate import build_agent, paired_difference, paired_verdict, run_episode
-from agents.evaluate.journal import ResumeError, RunFinished, RunJournal, write_manifest
+from agents.evaluate.journal import RunJournal, journal_for_command_line, write_manifest
 from agents.loading import agent_labels, check_agent_spec
 from agents.parallel import Executor, chunks
 from agents.parallel import add_arguments as add_executor_arguments
@@ -614,13 +614,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         "save_episodes": not args.no_save_episodes, "paired_against": args.paired_against,
         "paired_metrics": paired_metrics, "paired_relative_to": args.paired_relative_to,
     }  # fmt: skip
-    try:
-        journal = RunJournal.start(out, COMMAND, run_config, resume=resume)
-    except RunFinished as finished:
-        print(finished)
+    journal = journal_for_command_line(parser, out, COMMAND, run_config, resume)
+    if journal is None:
         return 0
-    except ResumeError as error:
-        parser.exit(2, f"{parser.prog}: error: {error}\n")
     limit_blas_threads(1)
     started = time.perf_counter()
     rows, series = evaluate(

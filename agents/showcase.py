@@ -54,7 +54,7 @@ from agents.cli import (
 from agents.cli import seed as seed_type
 from agents.evaluate import evaluate_agents, limited_threads, markdown_table, paired_table, write_outputs
 from agents.evaluate.cli import add_batch_arguments, check_batch_arguments
-from agents.evaluate.journal import MANIFEST, ResumeError, RunFinished, RunJournal, write_manifest
+from agents.evaluate.journal import MANIFEST, journal_for_command_line, write_manifest
 from agents.loading import SHIPPED_POLICIES, agent_labels, check_model_file
 from agents.parallel import add_arguments as add_executor_arguments
 from agents.parallel import available_cores
@@ -219,13 +219,9 @@ def main(argv: Sequence[str] | None = None) -> None:
         out, resume = resume_folder(args, "showcase")
     config = {"env_id": args.env, "episodes": args.episodes, "seed": args.seed, "agents": specs,
               "models": model_digests(agent_labels(specs)), "bootstrap": args.bootstrap, "threads": args.threads}  # fmt: skip
-    try:
-        journal = RunJournal.start(out, COMMAND, config, resume=resume)
-    except RunFinished as finished:
-        print(finished)
+    journal = journal_for_command_line(parser, out, COMMAND, config, resume)
+    if journal is None:
         return
-    except ResumeError as error:
-        parser.exit(2, f"{parser.prog}: error: {error}\n")
     started = time.perf_counter()
     with limited_threads(args.threads):
         rows, summary = evaluate_agents(specs, episodes=args.episodes, seed=args.seed, env_id=args.env, env_kwargs={},

@@ -23,7 +23,7 @@ from agents.cli import (
     tasks_epilog,
     usage_errors,
 )
-from agents.evaluate.journal import ResumeError, RunFinished, RunJournal
+from agents.evaluate.journal import journal_for_command_line
 from agents.evaluate.report import load_stored_run, markdown_table, paired_table, write_outputs
 from agents.evaluate.rollout import DEFAULT_BATCH_SIZE, evaluate_agents
 from agents.parallel import add_arguments as add_executor_arguments
@@ -122,13 +122,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         "agents": specs, "models": model_digests(labelled), "bootstrap": args.bootstrap,
         "stored_run": args.stored_run, "threads": args.threads,
     }  # fmt: skip
-    try:
-        journal = RunJournal.start(out, COMMAND, config, resume=resume)
-    except RunFinished as finished:
-        print(finished)
+    journal = journal_for_command_line(parser, out, COMMAND, config, resume)
+    if journal is None:
         return 0
-    except ResumeError as error:
-        parser.exit(2, f"{parser.prog}: error: {error}\n")
     if journal.discarded and not args.quiet:
         print(f"{out} held an unfinished run ({journal.discarded} tasks kept): starting afresh "
               f"(--resume {out} would have continued it)", file=sys.stderr)  # fmt: skip

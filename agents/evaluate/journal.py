@@ -50,6 +50,7 @@ __all__ = [
     "RunJournal",
     "UnfinishedRunError",
     "file_digest",
+    "journal_for_command_line",
     "finished_with",
     "forget_manifest",
     "read_manifest",
@@ -414,3 +415,20 @@ def verify_manifest(folder: str | os.PathLike, name: str = "folder") -> dict[str
     if changed:
         raise ValueError(f"{name}: {', '.join(changed)} in {folder} changed after its {MANIFEST} was written")
     return manifest
+
+
+def journal_for_command_line(parser: Any, folder: str | os.PathLike, command: str, config: Mapping[str, Any],
+                             resume: bool) -> RunJournal | None:  # fmt: skip
+    """:meth:`RunJournal.start` for a command's ``main``: ``None`` (after printing why) for a finished run.
+
+    A ``--resume`` that names no run of this configuration is a usage error: ``parser`` exits with
+    status 2 and one line.
+    """
+    try:
+        return RunJournal.start(folder, command, config, resume=resume)
+    except RunFinished as finished:
+        print(finished)
+        return None
+    except ResumeError as error:
+        parser.exit(2, f"{parser.prog}: error: {error}\n")
+        raise  # pragma: no cover - parser.exit exits

@@ -1226,7 +1226,17 @@ def _eseif_plan(mean, landmark_info, active_count, is_active, id_to_index, range
     if chosen.shape[0] > 0:  # split relocalization
         return np.sort(chosen), True, kept
     # no relocalization possible: keep what fits in the bound, mapped landmarks first, then the nearest
-    room = max_active - active_count
+    return none, False, _keep_within_bound(active, mapped, ranges, max_active - active_count)
+
+
+@njit(cache=True)
+def _keep_within_bound(active, mapped, ranges, room):  # fmt: skip
+    """The measurements an update keeps when the active bound leaves ``room`` places for the others.
+
+    Every measurement of an active landmark, then, of the others, the first ``room`` by (new after
+    mapped, nearest first): a stable insertion sort with ``np.lexsort``'s order.
+    """
+    kept = active.copy()
     others = np.flatnonzero(~active)
     order = np.empty(others.shape[0], dtype=np.int64)
     for c in range(others.shape[0]):  # a stable insertion sort on (not mapped, range), as np.lexsort
@@ -1241,11 +1251,9 @@ def _eseif_plan(mean, landmark_info, active_count, is_active, id_to_index, range
             else:
                 break
         order[pos] = c
-    for c in range(others.shape[0]):
-        kept[others[c]] = active[others[c]]
-    for c in range(min(room, others.shape[0])):
+    for c in range(min(max(room, 0), others.shape[0])):
         kept[others[order[c]]] = True
-    return none, False, kept
+    return kept
 
 
 @njit(cache=True)
@@ -1735,25 +1743,7 @@ def _cseif_kept(is_active, active_count, id_to_index, ranges, measured, max_acti
     room = max(max_active_hard, m) - active_count  # the ids of one update are distinct
     if joining <= room:
         return kept
-    others = np.flatnonzero(~active)
-    order = np.empty(others.shape[0], dtype=np.int64)
-    for c in range(others.shape[0]):  # a stable insertion sort on (not mapped, range), as np.lexsort
-        pos = c
-        key_new, key_range = not mapped[others[c]], ranges[others[c]]
-        while pos > 0:
-            prev = others[order[pos - 1]]
-            prev_new = not mapped[prev]
-            if prev_new > key_new or (prev_new == key_new and ranges[prev] > key_range):
-                order[pos] = order[pos - 1]
-                pos -= 1
-            else:
-                break
-        order[pos] = c
-    for k in range(m):
-        kept[k] = active[k]
-    for c in range(min(max(room, 0), others.shape[0])):
-        kept[others[order[c]]] = True
-    return kept
+    return _keep_within_bound(active, mapped, ranges, room)
 
 
 @njit(cache=True)

@@ -21,7 +21,7 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
-from agents.base import Agent, Observation
+from agents.base import Agent
 from agents.baselines import FrontierAgent, InfoGainAgent, RandomAgent, RevisitAgent
 from agents.memories import needs_acting_env
 from agents.sb3_agent import SB3Agent
@@ -175,19 +175,16 @@ def run_batched_episodes(
     return [(row, trace, planning[e], plans[e]) for e, (row, trace) in enumerate(zip(rows, map_errors))]
 
 
-class _DrawnAhead(Agent):
+class _DrawnAhead:
     """``random``'s actions for a batch: row ``e`` at step ``t`` takes draw ``offsets[e] + t`` of ``draws``.
 
-    A row past the draws (its speculated episode ran longer than the draws cover) takes the last one;
-    :func:`_random_episodes` never keeps such a row.
+    What :func:`_batched_rollout` calls of an agent (``predict``). A row past the draws (its speculated
+    episode ran longer than the draws cover) takes the last one; :func:`_random_episodes` never keeps
+    such a row.
     """
 
     def __init__(self, draws: np.ndarray, offsets: np.ndarray) -> None:
-        super().__init__(None)
         self.draws, self.offsets, self.step = draws, offsets, 0
-
-    def _act(self, observation: Observation, index: int) -> np.ndarray:  # pragma: no cover - predict is whole
-        raise NotImplementedError
 
     def predict(self, observation: Any, state: Any = None, episode_start: Any = None,
                 deterministic: bool = False) -> tuple[np.ndarray, Any]:  # fmt: skip
@@ -233,7 +230,7 @@ def _random_episodes(agent: RandomAgent, env: SeifExploreVectorEnv,
     return done
 
 
-def _batched_rollout(agent: Agent, env: SeifExploreVectorEnv, seeds: list[int], observation: dict[str, Any],
+def _batched_rollout(agent: Agent | _DrawnAhead, env: SeifExploreVectorEnv, seeds: list[int], observation: dict[str, Any],
                      info: dict[str, Any]) -> tuple[list[dict[str, Any]], list[list[float]], list[int]]:  # fmt: skip
     """:func:`run_batched_episodes`' loop from the reset's ``observation`` and ``info``.
 

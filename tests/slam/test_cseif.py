@@ -30,6 +30,7 @@ from seif_gym.slam import cseif as cseif_module
 from seif_gym.slam.cseif import apply_cut, cut_direction, local_information
 from seif_gym.slam.information import InformationStore
 from seif_gym.slam.simulation import loop_controls, loop_start_pose, pose_nees, ring_landmarks, simulate_run
+from tests.slam.test_step_failures import InjectedFailure, assert_same_state, failing, state_of
 
 DT = 0.1
 
@@ -394,24 +395,6 @@ def test_map_rmse_within_1_3x_the_ekf_on_family_c_design_seeds():
 # ---------------------------------------------------------------------------
 # atomic steps
 # ---------------------------------------------------------------------------
-class InjectedFailure(np.linalg.LinAlgError):
-    """The failure the tests inject."""
-
-
-def state_of(filt) -> dict[str, object]:
-    """Everything a filter holds, as plain values (arrays copied raw, capacity included)."""
-    state: dict[str, object] = {}
-    for prefix, owner in (("filter", filt), ("store", filt._store), ("queue", filt._queue)):
-        for name, value in vars(owner).items():
-            if isinstance(value, np.ndarray):
-                state[f"{prefix}.{name}"] = (value.dtype.str, value.shape, value.tobytes())
-            elif isinstance(value, (int, float, bool, str, type(None))):
-                state[f"{prefix}.{name}"] = value
-            elif isinstance(value, dict) and name == "_id_to_index":
-                state[f"{prefix}.{name}"] = dict(value)
-    return state
-
-
 STAGES = [
     (_kernels, "measurement_update", 1, False),
     (_kernels, "measurement_update", 1, True),
@@ -440,24 +423,12 @@ def test_a_failed_step_leaves_the_cseif_unchanged(ring_loop_run, monkeypatch, mo
     reference = copy.deepcopy(filt)
     filt.predict(run.controls[t], run.dt)
     reference.predict(run.controls[t], run.dt)
-    real = getattr(module, name)
-    calls = {"n": 0}
-
-    def stand_in(*args, **kwargs):
-        calls["n"] += 1
-        if calls["n"] == on_call:
-            if call_through:
-                real(*args, **kwargs)
-            raise InjectedFailure("injected failure")
-        return real(*args, **kwargs)
-
     before = state_of(filt)
-    monkeypatch.setattr(module, name, stand_in)
+    monkeypatch.setattr(module, name, failing(getattr(module, name), call_through=call_through, on_call=on_call))
     with pytest.raises(InjectedFailure):
         filt.update(run.ranges[t], run.bearings[t], run.ids[t])
     monkeypatch.undo()
-    after = state_of(filt)
-    assert [key for key in before if before[key] != after[key]] == []
+    assert_same_state(before, state_of(filt))
     filt.update(run.ranges[t], run.bearings[t], run.ids[t])
     reference.update(run.ranges[t], run.bearings[t], run.ids[t])
     assert state_of(filt) == state_of(reference)

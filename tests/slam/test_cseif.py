@@ -23,13 +23,13 @@ import math
 
 import numpy as np
 import pytest
-from scipy.stats import chi2
 
 from seif_gym.slam import EIF, EKF, FILTERS, ConservativeSEIF, RangeBearingSensor, VelocityMotionModel, _kernels
 from seif_gym.slam import cseif as cseif_module
 from seif_gym.slam.cseif import apply_cut, cut_direction, local_information
 from seif_gym.slam.information import InformationStore
-from seif_gym.slam.simulation import loop_controls, loop_start_pose, pose_nees, ring_landmarks, simulate_run
+from seif_gym.slam.simulation import loop_controls, loop_start_pose, ring_landmarks, simulate_run
+from tests.slam.test_eseif import monte_carlo_pose_anees
 from tests.slam.test_step_failures import InjectedFailure, assert_same_state, failing, state_of
 
 DT = 0.1
@@ -319,57 +319,17 @@ def test_memory_is_linear_in_the_map():
 # ---------------------------------------------------------------------------
 # consistency and accuracy
 # ---------------------------------------------------------------------------
-def random_trajectory(rng, steps: int, motion, arena: float, speed: float = 1.0, max_turn: float = 1.0):
-    """A random start near the centre and a random-walk turn rate that steers home beyond ``arena``."""
-    pose = np.array([*rng.uniform(-2.0, 2.0, 2), rng.uniform(-math.pi, math.pi)])
-    start = pose.copy()
-    controls = np.empty((steps, 2))
-    turn = 0.0
-    for t in range(steps):
-        turn = float(np.clip(turn + rng.normal(0.0, 0.3 * max_turn), -max_turn, max_turn))
-        if math.hypot(pose[0], pose[1]) > arena:
-            home = math.atan2(-pose[1], -pose[0]) - pose[2]
-            home = (home + math.pi) % (2.0 * math.pi) - math.pi
-            turn = float(np.clip(2.0 * home, -max_turn, max_turn))
-        controls[t] = (speed, turn)
-        pose = motion.predict(pose, controls[t], DT)
-    return start, controls
-
-
 @pytest.mark.slow
 def test_pose_anees_of_ekf_and_cseif_is_in_the_chi2_band():
     """50 random trajectories of 60 steps through 25 random landmarks, ``k = 4``; NEES at steps 20, 40, 60."""
-    runs, steps, checked_steps, half_width = 50, 60, [20, 40, 60], 8.0
-    rng = np.random.default_rng(0)
-    motion = VelocityMotionModel(alphas=(0.002, 0.0002, 0.0002, 0.002, 0.0001, 0.0001))
-    sensor = RangeBearingSensor(sigma_range=0.05, sigma_bearing=math.radians(1.0), max_range=4.0)
     factories = {
-        "EKF": lambda pose: EKF(motion, sensor, pose),
-        "CSEIF": lambda pose: ConservativeSEIF(motion, sensor, pose, max_active=4),
+        "EKF": lambda motion, sensor, pose: EKF(motion, sensor, pose),
+        "CSEIF": lambda motion, sensor, pose: ConservativeSEIF(motion, sensor, pose, max_active=4),
     }
-    nees = {name: np.empty((runs, len(checked_steps))) for name in factories}
-    cuts = 0
-    for k in range(runs):
-        landmarks = rng.uniform(-half_width, half_width, (25, 2))
-        start, controls = random_trajectory(rng, steps, motion, arena=half_width - 2.0)
-        run = simulate_run(motion, sensor, landmarks, controls, DT, start, rng)
-        for name, factory in factories.items():
-            filt = factory(run.initial_pose)
-            c = 0
-            for t in range(steps):
-                step(filt, run, t)
-                if t + 1 in checked_steps:
-                    nees[name][k, c] = pose_nees(run.true_poses[t + 1], filt.pose, filt.pose_covariance)
-                    c += 1
-            if name == "CSEIF":
-                cuts += filt.cuts
-    print(f"\n{cuts} cuts in {runs * steps} steps")
-    assert cuts > 2 * runs, "the CSEIF must sparsify in every run or so for this to test it"
-    lower, upper = chi2.ppf([0.025, 0.975], 3 * runs) / runs
-    anees = {name: values.mean(axis=0) for name, values in nees.items()}
-    print(f"\npose ANEES at steps {checked_steps}, 95% band ({lower:.2f}, {upper:.2f}), {runs} runs:")
+    anees, (lower, upper), cuts = monte_carlo_pose_anees(factories, ("CSEIF", "cuts"))
+    print(f"{cuts} cuts in {50 * 60} steps")
+    assert cuts > 2 * 50, "the CSEIF must sparsify in every run or so for this to test it"
     for name, values in anees.items():
-        print(f"  {name:5s} {np.array2string(values, precision=2)}")
         assert np.all((lower < values) & (values < upper)), (name, values, lower, upper)
 
 

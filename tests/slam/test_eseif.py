@@ -351,6 +351,41 @@ def random_trajectory(rng, steps: int, motion, arena: float, speed: float = 1.0,
     return start, controls
 
 
+def monte_carlo_pose_anees(factories, tally: tuple[str, str], runs: int = 50, steps: int = 60,
+                           checked_steps=(20, 40, 60), half_width: float = 8.0):  # fmt: skip
+    """Pose ANEES of each filter on ``runs`` random trajectories through 25 random landmarks (seed 0).
+
+    ``factories[name](motion, sensor, pose)`` builds a filter; ``tally = (name, attribute)`` sums that
+    filter's ``attribute`` over the runs (how often it sparsified). Returns the ANEES at
+    ``checked_steps`` per filter, the 95% chi-squared band ``(lower, upper)`` and the tally; prints them.
+    """
+    rng = np.random.default_rng(0)
+    motion = VelocityMotionModel(alphas=(0.002, 0.0002, 0.0002, 0.002, 0.0001, 0.0001))
+    sensor = RangeBearingSensor(sigma_range=0.05, sigma_bearing=math.radians(1.0), max_range=4.0)
+    nees = {name: np.empty((runs, len(checked_steps))) for name in factories}
+    counted = 0
+    for k in range(runs):
+        landmarks = rng.uniform(-half_width, half_width, (25, 2))
+        start, controls = random_trajectory(rng, steps, motion, arena=half_width - 2.0)
+        run = simulate_run(motion, sensor, landmarks, controls, DT, start, rng)
+        for name, factory in factories.items():
+            filt = factory(motion, sensor, run.initial_pose)
+            c = 0
+            for t in range(steps):
+                step(filt, run, t)
+                if t + 1 in checked_steps:
+                    nees[name][k, c] = pose_nees(run.true_poses[t + 1], filt.pose, filt.pose_covariance)
+                    c += 1
+            if name == tally[0]:
+                counted += getattr(filt, tally[1])
+    lower, upper = chi2.ppf([0.025, 0.975], 3 * runs) / runs
+    anees = {name: values.mean(axis=0) for name, values in nees.items()}
+    print(f"\npose ANEES at steps {list(checked_steps)}, 95% band ({lower:.2f}, {upper:.2f}), {runs} runs:")
+    for name, values in anees.items():
+        print(f"  {name:5s} {np.array2string(values, precision=2)}")
+    return anees, (lower, upper), counted
+
+
 @pytest.mark.slow
 def test_pose_anees_of_ekf_and_eseif_is_in_the_chi2_band():
     """50 random trajectories of 60 steps through 25 random landmarks; NEES at steps 20, 40, 60.
@@ -358,37 +393,13 @@ def test_pose_anees_of_ekf_and_eseif_is_in_the_chi2_band():
     ``max_active=4`` with about 5 landmarks per scan: the ESEIF relocalizes in
     more than half of the steps. The SEIF(4) on the same data is reported.
     """
-    runs, steps, checked_steps, half_width = 50, 60, [20, 40, 60], 8.0
-    rng = np.random.default_rng(0)
-    motion = VelocityMotionModel(alphas=(0.002, 0.0002, 0.0002, 0.002, 0.0001, 0.0001))
-    sensor = RangeBearingSensor(sigma_range=0.05, sigma_bearing=math.radians(1.0), max_range=4.0)
     factories = {
-        "EKF": lambda pose: EKF(motion, sensor, pose),
-        "ESEIF": lambda pose: ESEIF(motion, sensor, pose, max_active=4),
-        "SEIF": lambda pose: SEIF(motion, sensor, pose, max_active=4),
+        "EKF": lambda motion, sensor, pose: EKF(motion, sensor, pose),
+        "ESEIF": lambda motion, sensor, pose: ESEIF(motion, sensor, pose, max_active=4),
+        "SEIF": lambda motion, sensor, pose: SEIF(motion, sensor, pose, max_active=4),
     }
-    nees = {name: np.empty((runs, len(checked_steps))) for name in factories}
-    relocalizations = 0
-    for k in range(runs):
-        landmarks = rng.uniform(-half_width, half_width, (25, 2))
-        start, controls = random_trajectory(rng, steps, motion, arena=half_width - 2.0)
-        run = simulate_run(motion, sensor, landmarks, controls, DT, start, rng)
-        for name, factory in factories.items():
-            filt = factory(run.initial_pose)
-            c = 0
-            for t in range(steps):
-                step(filt, run, t)
-                if t + 1 in checked_steps:
-                    nees[name][k, c] = pose_nees(run.true_poses[t + 1], filt.pose, filt.pose_covariance)
-                    c += 1
-            if name == "ESEIF":
-                relocalizations += filt.relocalizations
-    assert relocalizations > 0.4 * runs * steps, "the ESEIF must sparsify often for this to test it"
-    lower, upper = chi2.ppf([0.025, 0.975], 3 * runs) / runs
-    anees = {name: values.mean(axis=0) for name, values in nees.items()}
-    print(f"\npose ANEES at steps {checked_steps}, 95% band ({lower:.2f}, {upper:.2f}), {runs} runs:")
-    for name, values in anees.items():
-        print(f"  {name:5s} {np.array2string(values, precision=2)}")
+    anees, (lower, upper), relocalizations = monte_carlo_pose_anees(factories, ("ESEIF", "relocalizations"))
+    assert relocalizations > 0.4 * 50 * 60, "the ESEIF must sparsify often for this to test it"
     for name in ("EKF", "ESEIF"):
         average = anees[name]
         assert np.all((lower < average) & (average < upper)), (name, average, lower, upper)

@@ -62,7 +62,6 @@ for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS", "NUMB
     os.environ[_var] = "1"  # before numpy is imported: stable timings, no thread contention
 
 import argparse  # noqa: E402
-import json  # noqa: E402
 import math  # noqa: E402
 import platform  # noqa: E402
 import sys  # noqa: E402
@@ -72,6 +71,7 @@ from concurrent.futures import ProcessPoolExecutor  # noqa: E402
 import numpy as np  # noqa: E402
 from scipy.stats import chi2  # noqa: E402
 
+from seif_gym._atomic import atomic_write_json, atomic_write_text  # noqa: E402
 from seif_gym.metrics import pose_nees  # noqa: E402
 from seif_gym.slam import EKF, ESEIF, SEIF, ConservativeSEIF, RangeBearingSensor, VelocityMotionModel  # noqa: E402
 from seif_gym.slam.scenarios import FIDELITY_SCENARIOS, make_loop_run  # noqa: E402
@@ -325,14 +325,17 @@ def main(argv: list[str] | None = None) -> int:
     print(f"# Fidelity: {len(args.scenarios)} scenarios x {args.seeds} seeds, k = {', '.join(map(str, ks))} "
           f"({elapsed:.0f} s, {args.jobs} jobs, Python {platform.python_version()})")  # fmt: skip
     print(table)
-    if args.markdown:
-        with open(args.markdown, "w") as handle:
-            handle.write(table + "\n")
-    if args.json:
-        with open(args.json, "w") as handle:
-            json.dump({"command": " ".join(sys.argv), "summary": rows,
-                       "runs": [{"scenario": n, "seed": s, "filters": r} for n, s, r in results]}, handle, indent=1)  # fmt: skip
+    write_outputs(args, table, {"summary": rows, "runs": [{"scenario": n, "seed": s, "filters": r}
+                                                          for n, s, r in results]})  # fmt: skip
     return 0
+
+
+def write_outputs(args: argparse.Namespace, table: str, record: dict) -> None:
+    """``--markdown`` (the table) and ``--json`` (the command and ``record``), each whole or not at all."""
+    if args.markdown:
+        atomic_write_text(args.markdown, table + "\n")
+    if args.json:
+        atomic_write_json(args.json, {"command": " ".join(sys.argv), **record}, indent=1)
 
 
 def main_families(args: argparse.Namespace) -> int:
@@ -350,13 +353,8 @@ def main_families(args: argparse.Namespace) -> int:
     print(f"# Families {' '.join(args.families)}, seeds {' '.join(map(str, args.family_seeds))} ({kind}); "
           f"every filter's defaults ({elapsed:.0f} s, {args.jobs} jobs, Python {platform.python_version()})")  # fmt: skip
     print(table)
-    if args.markdown:
-        with open(args.markdown, "w") as handle:
-            handle.write(table + "\n")
-    if args.json:
-        with open(args.json, "w") as handle:
-            json.dump({"command": " ".join(sys.argv), "seeds": kind,
-                       "runs": [{"family": f, "seed": s, "filters": r} for f, s, r in results]}, handle, indent=1)  # fmt: skip
+    write_outputs(args, table, {"seeds": kind, "runs": [{"family": f, "seed": s, "filters": r}
+                                                        for f, s, r in results]})  # fmt: skip
     return 0
 
 
